@@ -1,0 +1,1 @@
+"""Pure, batched physics of the SMA neck (no Gym, no I/O)."""
