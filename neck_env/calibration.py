@@ -29,7 +29,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .params import DEFAULT_PARAMS_PATH, NeckParams, default_params
-from .physics.plant import DEFAULT_DT_S, PlantConstants, pulse_currents, simulate
+from .physics.plant import DEFAULT_DT_S, constants_from_params, pulse_currents, simulate
 
 # Paper Table 1: current (A) -> maximum bending angle (deg), one muscle on for 5 s.
 TABLE1 = ((4.0, 4.73), (5.0, 5.89), (6.0, 11.34), (7.0, 24.92), (8.0, 32.41))
@@ -106,9 +106,9 @@ def run_table1(param_sets: Sequence[NeckParams], muscle: int = 0,
     amps = np.asarray(currents_A, float)
     n_sets = len(param_sets)
     rigs = [p for p in param_sets for _ in amps]
-    pc = PlantConstants.from_params(rigs)
+    consts = constants_from_params(rigs)
     cur = pulse_currents(np.tile(amps, n_sets), muscle, PULSE_S, RECORD_S, dt_s)
-    tr, _ = simulate(pc, cur, dt_s)
+    tr, _ = simulate(consts, cur, dt_s)
     on = tr.t_s <= PULSE_S + 1e-9
     transformed = tr.xi[:, :, muscle] < 1.0 - 1e-9
     first = np.where(transformed.any(axis=0), tr.t_s[np.argmax(transformed, axis=0)], np.inf)

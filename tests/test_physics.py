@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 
 from neck_env.params import NeckParams, default_params
-from neck_env.physics import sma
-from neck_env.physics.backbone import head_rotation, kinematics, pose_from_angles
+from neck_env.physics import layout as L
+from neck_env.physics.backbone import head_rotation, kinematics, kinematics_batch, pose_from_angles
 from neck_env.physics.muscles import generalized_forces, spring_geometry
-from neck_env.physics.plant import PlantConstants, initial_state, pulse_currents, simulate, step
+from neck_env.physics.plant import (constants_from_params, initial_state, pulse_currents, simulate,
+                                    step)
+from neck_env.physics.sma import resistance_batch, spring_force_batch, spring_rate_batch
 
 
 @pytest.fixture(scope="module")
@@ -19,7 +21,7 @@ def params():
 
 @pytest.fixture(scope="module")
 def pc(params):
-    return PlantConstants.from_params(params)
+    return constants_from_params(params)
 
 
 # --- SMA spring -----------------------------------------------------------------------------
@@ -28,34 +30,33 @@ def test_spring_rate_limits_match_closed_form():
     # Hand numbers for the datasheet spring: d = 0.8 mm, D = 5 mm, n = 14, nu = 0.33.
     # G_a = 75 GPa / 2.66 = 28.195 GPa; d^4 / (8 n D^3) = 4.096e-13 / 1.4e-5 = 2.9257e-8 m.
     # k_a = 824.9 N/m; G_m = 28 GPa / 2.66 = 10.526 GPa -> k_m = 307.96 N/m.
-    p = NeckParams()
-    c = PlantConstants.from_params(p).sma
-    k = sma.spring_rate(c, np.array([[0.0, 1.0]]))
+    c = constants_from_params(NeckParams())
+    k = spring_rate_batch(c, np.array([[0.0, 1.0]]))
     assert k[0, 0] == pytest.approx(824.9, rel=1e-3)
     assert k[0, 1] == pytest.approx(307.96, rel=1e-3)
     # The force law has exactly that slope at fixed phase (finite difference, taut spring).
     T = np.full((1, 2), 25.0)
     xi = np.array([[0.0, 1.0]])
     ext = np.full((1, 2), 0.05)
-    slope = (sma.spring_force(c, ext + 1e-6, xi, T) - sma.spring_force(c, ext, xi, T)) / 1e-6
+    slope = (spring_force_batch(c, ext + 1e-6, xi, T) - spring_force_batch(c, ext, xi, T)) / 1e-6
     np.testing.assert_allclose(slope, k, rtol=1e-6)
 
 
 def test_spring_carries_tension_only(pc):
-    c = pc.sma
     T = np.full((1, 3), 25.0)
     xi = np.ones((1, 3))
     # Martensite spring shorter than its recoverable extension is slack: no push.
-    f = sma.spring_force(c, np.array([[-0.01, 0.0, 0.005]]), xi, T)
+    f = spring_force_batch(pc, np.array([[-0.01, 0.0, 0.005]]), xi, T)
     np.testing.assert_array_equal(f, 0.0)
 
 
 def test_resistance_is_phase_weighted(pc):
-    c = pc.sma
-    r = sma.resistance(c, np.array([[1.0, 0.0, 0.25]]))
-    assert r[0, 0] == pytest.approx(c.R_martensite_ohm[0, 0])
-    assert r[0, 1] == pytest.approx(c.R_austenite_ohm[0, 0])
-    assert r[0, 2] == pytest.approx(0.25 * c.R_martensite_ohm[0, 0] + 0.75 * c.R_austenite_ohm[0, 0])
+    r = resistance_batch(pc, np.array([[1.0, 0.0, 0.25]]))
+    rm, ra = pc[0, L.R_M], pc[0, L.R_A]
+    # Hand numbers: 76 / 82 uOhm cm over pi * 5 mm * 14 turns of 0.8 mm wire = 0.3325 / 0.3588 ohm.
+    assert rm == pytest.approx(0.3325, rel=1e-3)
+    assert ra == pytest.approx(0.3588, rel=1e-3)
+    np.testing.assert_allclose(r[0], [rm, ra, 0.25 * rm + 0.75 * ra], rtol=1e-12)
 
 
 def _cycling_run(pc, dt):
@@ -109,21 +110,22 @@ def test_hysteresis_cooling_branch_lags_heating(pc):
 def test_energy_balance_over_a_pulse(pc):
     dt = 0.01
     cur = pulse_currents([7.0], 0, 5.0, 15.0, dt)
-    st = initial_state(pc, 1)
-    joule, Ts, xis = [], [st.phase.T_C[0, 0]], [1.0]
+    x = initial_state(pc, 1)
+    joule, Ts, xis = [], [x[0, L.S_T]], [1.0]
     for k in range(cur.shape[0]):
-        st, out = step(pc, st, cur[k], dt)
-        joule.append(out.power_W[0, 0] / 2 * dt)  # one spring
-        Ts.append(st.phase.T_C[0, 0])
-        xis.append(st.phase.xi[0, 0])
+        x, out, _ = step(pc, x, cur[k], dt)
+        joule.append(out[0, L.O_ENERGY] / 2)  # one spring of the pair
+        Ts.append(x[0, L.S_T])
+        xis.append(x[0, L.S_XI])
     Ts, xis = np.array(Ts), np.array(xis)
-    c = pc.sma
     heat_in = np.sum(joule)
-    stored = c.heat_capacity_J_K[0, 0] * (Ts[-1] - Ts[0])
-    convected = c.hA_W_K[0, 0] * np.trapezoid(Ts - c.ambient_C[0, 0], dx=dt)
-    latent = -c.latent_J[0, 0] * (xis[-1] - xis[0])  # absorbed by M -> A
+    stored = pc[0, L.HEAT_CAP] * (Ts[-1] - Ts[0])
+    convected = pc[0, L.HA] * np.trapezoid(Ts - pc[0, L.AMBIENT], dx=dt)
+    latent = -pc[0, L.LATENT_J] * (xis[-1] - xis[0])  # absorbed by M -> A
     assert xis[-1] < 0.9, "the pulse must transform so latent heat is tested"
     assert stored + convected + latent == pytest.approx(heat_in, rel=0.01)
+    # Hand check of the first step: I^2 R_m dt at 7 A through one martensite spring.
+    assert joule[0] == pytest.approx(49 * pc[0, L.R_M] * dt, rel=1e-12)
 
 
 # --- Backbone kinematics --------------------------------------------------------------------
@@ -133,14 +135,14 @@ def test_tip_position_matches_eq6():
     theta = rng.uniform(0.05, 1.2, 20)
     phi = rng.uniform(0, 2 * np.pi, 20)
     l = 0.1
-    kin = kinematics(pose_from_angles(theta, phi), l)
+    tip, _, _ = kinematics_batch(pose_from_angles(theta, phi), l)
     kappa = theta / l
     expect = np.stack([np.cos(phi) / kappa * (1 - np.cos(kappa * l)),
                        np.sin(phi) / kappa * (1 - np.cos(kappa * l)),
                        np.sin(kappa * l) / kappa], -1)
-    np.testing.assert_allclose(kin.tip_m, expect, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(tip, expect, rtol=1e-12, atol=1e-15)
     # Upright limit is smooth: p(l) = (0, 0, l).
-    np.testing.assert_allclose(kinematics(np.zeros((1, 3)), l).tip_m, [[0, 0, l]], atol=1e-15)
+    np.testing.assert_allclose(kinematics_batch(np.zeros((1, 3)), l)[0], [[0, 0, l]], atol=1e-15)
 
 
 def _rz(a):
@@ -161,48 +163,60 @@ def test_head_rotation_matches_eq7():
 def test_jacobians_match_finite_differences(q):
     q = np.array([q])
     l = 0.1
-    kin = kinematics(q, l)
+    _, dtip, rot = kinematics_batch(q, l)
     R0 = head_rotation(q)[0]
     h = 1e-7
     for i in range(3):
         dq = np.zeros((1, 3))
         dq[0, i] = h
-        kp, km = kinematics(q + dq, l), kinematics(q - dq, l)
-        np.testing.assert_allclose((kp.tip_m - km.tip_m)[0] / (2 * h), kin.dtip_dq[0, i], atol=1e-7)
+        tp, tm = kinematics_batch(q + dq, l)[0], kinematics_batch(q - dq, l)[0]
+        np.testing.assert_allclose((tp - tm)[0] / (2 * h), dtip[0, i], atol=1e-7)
         W = (head_rotation(q + dq)[0] - head_rotation(q - dq)[0]) / (2 * h) @ R0.T
         axis = np.array([W[2, 1], W[0, 2], W[1, 0]])
-        np.testing.assert_allclose(axis, kin.rot_axis_dq[0, i], atol=1e-6)
+        np.testing.assert_allclose(axis, rot[0, i], atol=1e-6)
+
+
+def _geometry(c, q):
+    tip, dtip, rot = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
+    offset, unit, ext = np.empty((3, 3)), np.empty((3, 2, 3)), np.empty((3, 2))
+    f1, f2 = kinematics(q[0], q[1], c[L.LENGTH], tip, dtip, rot)
+    spring_geometry(c, q[0], q[1], q[2], f1, f2, tip, offset, unit, ext)
+    return dtip, rot, offset, unit, ext
+
+
+def _forces(c, q, tension):
+    dtip, rot, offset, unit, _ = _geometry(c, q)
+    qf, fmus = np.empty(3), np.empty((3, 3))
+    generalized_forces(tension, unit, offset, dtip, rot, qf, fmus)
+    return qf, fmus
 
 
 def test_generalized_forces_equal_virtual_work(pc):
     # Q = -sum_f F_f dL_f/dq for fixed spring tensions (eq. 11 moment balance by virtual work).
-    q = np.array([[0.25, 0.1, 0.02]])
-    tension = np.array([[[3.0, 2.0], [1.0, 4.0], [0.5, 0.0]]])
-    kin = kinematics(q, pc.length_m)
-    Q, _ = generalized_forces(kin, spring_geometry(pc.muscles, kin, q[:, 2]), tension)
+    c = pc[0]
+    q = np.array([0.25, 0.1, 0.02])
+    tension = np.array([[3.0, 2.0], [1.0, 4.0], [0.5, 0.0]])
+    Q, _ = _forces(c, q, tension)
     h = 1e-7
     for i in range(3):
-        dq = np.zeros((1, 3))
-        dq[0, i] = h
-        Lp = spring_geometry(pc.muscles, kinematics(q + dq, pc.length_m), (q + dq)[:, 2]).spring_length_m
-        Lm = spring_geometry(pc.muscles, kinematics(q - dq, pc.length_m), (q - dq)[:, 2]).spring_length_m
-        assert Q[0, i] == pytest.approx(-np.sum(tension * (Lp - Lm) / (2 * h)), rel=1e-6, abs=1e-9)
+        dq = np.zeros(3)
+        dq[i] = h
+        Lp = _geometry(c, q + dq)[4]  # extension = length - free length
+        Lm = _geometry(c, q - dq)[4]
+        assert Q[i] == pytest.approx(-np.sum(tension * (Lp - Lm) / (2 * h)), rel=1e-6, abs=1e-9)
 
 
 def test_pennate_force_is_2Ff_cos_alpha(pc, params):
     # Upright pose, equal spring tensions: the tendon force is 2 F_f cos(alpha) (eq. 12).
-    q = np.zeros((1, 3))
-    kin = kinematics(q, pc.length_m)
-    geo = spring_geometry(pc.muscles, kin, q[:, 2])
-    _, f_muscle = generalized_forces(kin, geo, np.full((1, 3, 2), 5.0))
+    _, fmus = _forces(pc[0], np.zeros(3), np.full((3, 2), 5.0))
     alpha = math.radians(params.muscles.pennation_deg)
-    np.testing.assert_allclose(np.linalg.norm(f_muscle, axis=-1), 2 * 5.0 * math.cos(alpha), rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(fmus, axis=-1), 2 * 5.0 * math.cos(alpha), rtol=1e-12)
 
 
 # --- Whole plant ----------------------------------------------------------------------------
 
 def test_zero_current_leaves_neck_upright(pc):
-    tr, st = simulate(pc, np.zeros((2000, 2, 3)))
+    tr, _ = simulate(pc, np.zeros((2000, 2, 3)))
     assert np.abs(tr.theta_deg).max() < 1e-9
     np.testing.assert_allclose(tr.T_C, 25.0, atol=1e-9)
     np.testing.assert_array_equal(tr.xi, 1.0)
@@ -246,9 +260,9 @@ def test_step_convergence(pc):
 def test_batched_rigs_with_different_parameters_match_single_runs(params):
     other = params.replace(thermal__convection_W_m2K=150.0, backbone__bending_stiffness_Nm2=0.08)
     cur = pulse_currents([7.0, 7.0], 0, 5.0, 8.0)
-    tr, _ = simulate(PlantConstants.from_params([params, other]), cur)
-    tr_a, _ = simulate(PlantConstants.from_params(params), cur[:, :1])
-    tr_b, _ = simulate(PlantConstants.from_params(other), cur[:, 1:])
+    tr, _ = simulate(constants_from_params([params, other]), cur)
+    tr_a, _ = simulate(constants_from_params(params), cur[:, :1])
+    tr_b, _ = simulate(constants_from_params(other), cur[:, 1:])
     np.testing.assert_allclose(tr.theta_deg[:, 0], tr_a.theta_deg[:, 0], atol=1e-12)
     np.testing.assert_allclose(tr.theta_deg[:, 1], tr_b.theta_deg[:, 0], atol=1e-12)
     assert abs(tr_a.theta_deg[-1, 0] - tr_b.theta_deg[-1, 0]) > 1.0
@@ -257,10 +271,12 @@ def test_batched_rigs_with_different_parameters_match_single_runs(params):
 # --- Bad input ------------------------------------------------------------------------------
 
 def test_non_finite_or_misshaped_currents_raise(pc):
-    st = initial_state(pc, 2)
+    x = initial_state(pc, 2)
     with pytest.raises(ValueError, match="finite"):
-        step(pc, st, np.array([[1.0, np.nan, 0.0], [0.0, 0.0, 0.0]]), 0.01)
+        step(pc, x, np.array([[1.0, np.nan, 0.0], [0.0, 0.0, 0.0]]), 0.01)
     with pytest.raises(ValueError, match="finite"):
-        step(pc, st, np.array([[np.inf, 0.0, 0.0], [0.0, 0.0, 0.0]]), 0.01)
+        step(pc, x, np.array([[np.inf, 0.0, 0.0], [0.0, 0.0, 0.0]]), 0.01)
     with pytest.raises(ValueError, match=r"shape \(2, 3\)"):
-        step(pc, st, np.zeros((2, 2)), 0.01)
+        step(pc, x, np.zeros((2, 2)), 0.01)
+    with pytest.raises(ValueError, match="dt_s > 0"):
+        step(pc, x, np.zeros((2, 3)), -0.01)

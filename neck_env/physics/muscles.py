@@ -1,89 +1,86 @@
 """Bipennate muscle geometry and the moments they put on the head (paper eq. 11-14).
 
-Muscle k sits at azimuth psi_k. Its tendon attaches to the head mount at radius r_h
-(``h_k`` in the head frame); its two springs run from that point down to two base anchors at
-radius r_b, offset by +-w along the tangent, where ``w = l * tan(alpha)`` makes the pennation
-angle alpha in the upright pose. Each spring pulls the tendon toward its own anchor, so the
-muscle force along the tendon is ``F_k = 2 F_f cos(alpha)`` (eq. 12) while the tangential
-components cancel in the upright pose (and twist the head slightly when it is bent).
+Muscle k sits at azimuth psi_k. Its tendon attaches to the head mount at radius r_h; its two
+springs run from that point down to two base anchors at radius r_b, offset by +-w along the
+tangent, with ``w = l tan(alpha)`` so the upright pennation angle is alpha. Each spring pulls
+the tendon toward its own anchor, so the tendon force is ``F_k = 2 F_f cos(alpha)`` upright
+(eq. 12) and the tangential parts cancel (they twist the head slightly once it is bent).
 
 Moments: the head sees the net force ``F = sum F_k`` at the tip and the moment
-``M = sum (p_k(l) - p(l)) x F_k`` about it (eq. 11). They enter the pose dynamics as
+``M = sum (p_k(l) - p(l)) x F_k`` about it (eq. 11); they enter the pose dynamics as
 generalized forces by virtual work, ``Q_i = F . dp/dq_i + M . Omega_i``.
-
-Shapes: spring arrays are ``(N, 3 [muscle], 2 [spring])``; geometry constants carry a leading
-batch axis B = 1 or N.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import math
 
 import numpy as np
+from numba import njit
 
-from .backbone import BackboneKinematics, _cross, rotate_bend
-
-
-class MuscleConstants(NamedTuple):
-    head_points_local_m: np.ndarray  # (B, 3, 3): tendon attachment h_k in the untwisted head frame
-    base_anchors_m: np.ndarray  # (B, 3, 2, 3)
-    spring_free_length_m: np.ndarray  # (B, 1, 1): anchor-to-tendon length at zero extension
-    head_radius_m: np.ndarray  # (B, 1)
-    azimuths_rad: np.ndarray  # (B, 3)
+from .backbone import rotate_bend
+from .layout import ANCHOR, FREE_LEN, HEAD_R, PSI
 
 
-def muscle_geometry(azimuths_deg, head_radius_m, base_radius_m, pennation_deg, length_m,
-                    installed_extension_m) -> MuscleConstants:
-    """Build the geometry constants for a batch of rigs (all arguments (B,) or (B, 3) arrays)."""
-    psi = np.deg2rad(np.atleast_2d(np.asarray(azimuths_deg, float)))  # (B, 3)
-    rh = np.atleast_1d(np.asarray(head_radius_m, float))[:, None]  # (B, 1)
-    rb = np.atleast_1d(np.asarray(base_radius_m, float))[:, None]
-    alpha = np.deg2rad(np.atleast_1d(np.asarray(pennation_deg, float)))[:, None]
-    l = np.atleast_1d(np.asarray(length_m, float))[:, None]
-    radial = np.stack([np.cos(psi), np.sin(psi), np.zeros_like(psi)], -1)  # (B, 3, 3)
-    tangent = np.stack([-np.sin(psi), np.cos(psi), np.zeros_like(psi)], -1)
-    head = rh[..., None] * radial
-    w = (l * np.tan(alpha))[..., None]  # (B, 1, 1)
-    base_center = rb[..., None] * radial
-    anchors = np.stack([base_center + w * tangent, base_center - w * tangent], axis=2)  # (B,3,2,3)
-    # Upright spring length: from the tendon point (r_h, height l) to an anchor (r_b +- w, 0).
-    upright = np.sqrt((rh - rb) ** 2 + l**2 + (l * np.tan(alpha)) ** 2)  # (B, 1)
-    inst = np.atleast_1d(np.asarray(installed_extension_m, float))[:, None]
-    free = (upright - inst)[..., None]  # (B, 1, 1)
-    if np.any(free <= 0):
-        raise ValueError("spring free length <= 0: installed extension exceeds the upright "
-                         "spring length (check spring.recoverable_shear_strain and geometry)")
-    return MuscleConstants(head, anchors, free, rh, psi)
+def anchor_geometry(azimuths_deg, head_radius_m: float, base_radius_m: float, pennation_deg: float,
+                    length_m: float, installed_extension_m: float) -> tuple[np.ndarray, float]:
+    """Base anchors (3 muscles, 2 springs, xyz) and the spring free length for one rig."""
+    psi = np.deg2rad(np.asarray(azimuths_deg, float))
+    radial = np.stack([np.cos(psi), np.sin(psi), np.zeros(3)], -1)
+    tangent = np.stack([-np.sin(psi), np.cos(psi), np.zeros(3)], -1)
+    w = length_m * math.tan(math.radians(pennation_deg))
+    centre = base_radius_m * radial
+    anchors = np.stack([centre + w * tangent, centre - w * tangent], axis=1)
+    # Upright spring: from the tendon (r_h, height l) to an anchor (r_b, +-w, 0).
+    upright = math.sqrt((head_radius_m - base_radius_m) ** 2 + length_m**2 + w**2)
+    free = upright - installed_extension_m
+    if free <= 0:
+        raise ValueError(f"spring free length {free:.4f} m <= 0: the installed extension "
+                         f"{installed_extension_m:.4f} m exceeds the upright spring length "
+                         f"{upright:.4f} m (check spring.recoverable_shear_strain and geometry)")
+    return anchors, free
 
 
-class MuscleGeometryState(NamedTuple):
-    head_offset_m: np.ndarray  # (N, 3, 3): p_k(l) - p(l) in the world frame
-    unit_to_anchor: np.ndarray  # (N, 3, 2, 3)
-    spring_length_m: np.ndarray  # (N, 3, 2)
-    extension_m: np.ndarray  # (N, 3, 2)
+@njit(cache=True)
+def spring_geometry(c, bx, by, eps, f1, f2, tip, offset, unit, ext):
+    """Fill tendon offsets p_k(l) - p(l) (3, 3), unit vectors tendon -> anchor (3, 2, 3) and
+    spring extensions (3, 2) for one rig."""
+    local = np.empty(3)
+    for k in range(3):
+        psi = c[PSI + k] + eps
+        local[0] = c[HEAD_R] * math.cos(psi)
+        local[1] = c[HEAD_R] * math.sin(psi)
+        local[2] = 0.0
+        rotate_bend(bx, by, f1, f2, local, offset[k])
+        for s in range(2):
+            a = ANCHOR + 6 * k + 3 * s
+            v0 = c[a] - tip[0] - offset[k, 0]
+            v1 = c[a + 1] - tip[1] - offset[k, 1]
+            v2 = c[a + 2] - tip[2] - offset[k, 2]
+            length = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            unit[k, s, 0] = v0 / length
+            unit[k, s, 1] = v1 / length
+            unit[k, s, 2] = v2 / length
+            ext[k, s] = length - c[FREE_LEN]
 
 
-def spring_geometry(mc: MuscleConstants, kin: BackboneKinematics, eps: np.ndarray) -> MuscleGeometryState:
-    """Where the tendons are and how far each spring is stretched, for poses ``kin``/``eps``."""
-    psi = mc.azimuths_rad + eps[:, None]  # twist rotates the head points
-    local = mc.head_radius_m[..., None] * np.stack([np.cos(psi), np.sin(psi), np.zeros_like(psi)], -1)
-    offset = rotate_bend(kin, local)  # (N, 3, 3)
-    tendon = kin.tip_m[:, None, :] + offset
-    vec = mc.base_anchors_m - tendon[:, :, None, :]  # (N, 3, 2, 3)
-    length = np.sqrt(np.einsum("...i,...i->...", vec, vec))
-    unit = vec / length[..., None]
-    return MuscleGeometryState(offset, unit, length, length - mc.spring_free_length_m)
-
-
-def generalized_forces(kin: BackboneKinematics, geo: MuscleGeometryState,
-                       spring_force_N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Generalized forces (N, 3) on q from spring tensions (N, 3, 2); also F_k vectors (N, 3, 3).
-
-    The tendon force of muscle k is the sum of its two spring pulls (eq. 12 in vector form);
-    the moment about the tip is eq. 11.
-    """
-    f_muscle = np.einsum("nks,nksi->nki", spring_force_N, geo.unit_to_anchor)  # (N, 3, 3)
-    f_net = f_muscle.sum(axis=1)
-    moment = _cross(geo.head_offset_m, f_muscle).sum(axis=1)
-    q_force = np.einsum("ni,nqi->nq", f_net, kin.dtip_dq) + np.einsum("ni,nqi->nq", moment, kin.rot_axis_dq)
-    return q_force, f_muscle
+@njit(cache=True)
+def generalized_forces(forces, unit, offset, dtip, rot, q_force, f_muscle):
+    """Generalized forces (3,) on q from spring tensions (3, 2); also tendon forces (3, 3)."""
+    fx = fy = fz = 0.0
+    mx = my = mz = 0.0
+    for k in range(3):
+        f0 = forces[k, 0] * unit[k, 0, 0] + forces[k, 1] * unit[k, 1, 0]
+        f1 = forces[k, 0] * unit[k, 0, 1] + forces[k, 1] * unit[k, 1, 1]
+        f2 = forces[k, 0] * unit[k, 0, 2] + forces[k, 1] * unit[k, 1, 2]
+        f_muscle[k, 0], f_muscle[k, 1], f_muscle[k, 2] = f0, f1, f2
+        fx += f0
+        fy += f1
+        fz += f2
+        o = offset[k]
+        mx += o[1] * f2 - o[2] * f1
+        my += o[2] * f0 - o[0] * f2
+        mz += o[0] * f1 - o[1] * f0
+    for i in range(3):
+        q_force[i] = (fx * dtip[i, 0] + fy * dtip[i, 1] + fz * dtip[i, 2]
+                      + mx * rot[i, 0] + my * rot[i, 1] + mz * rot[i, 2])

@@ -1,20 +1,28 @@
 """The whole neck as one batched plant: springs -> muscles -> backbone pose.
 
-``PlantConstants.from_params`` turns one or many ``NeckParams`` into arrays (leading axis B = 1
-or N rigs); ``initial_state`` and ``step`` are pure functions over a batch of N rigs.
+Data: packed float64 arrays (column layout in ``layout``): constants ``(B, N_CONST)`` from
+``constants_from_params`` (B = 1 shares one parameter row among all rigs), state
+``(N, N_STATE)`` from ``initial_state``, outputs ``(N, N_OUT)``. ``step`` is a pure function of
+them; ``step_inplace`` is the allocation-free form the environments use. One compiled call
+advances all N rigs (parallel over rigs for large N); no Python loop runs over rigs.
 
 Pose dynamics. Head inertia is neglected (250 g at ~0.1 m gives J ~ 3e-3 kg m^2 and a natural
-frequency near 20 rad/s, far faster than the thermal time scale of seconds, and the TPU damps
-it), leaving first-order viscous relaxation toward the moment balance of eq. 15::
+frequency near 20 rad/s, far faster than the thermal seconds, and the TPU damps it). The pose
+relaxes viscously toward the moment balance of eq. 15::
 
-    c * q_dot = Q_muscles(q) - K q,   K = diag(EI / l, EI / l, GJ / l)
+    c q_dot = Q_muscles(q) - K q  (+ effect terms),   K = diag(EI / l, EI / l, GJ / l)
 
-integrated linearly-implicitly, ``q += dt * Q / (c + dt * K_eff)`` with ``K_eff`` the backbone
-stiffness plus an estimate of the taut springs' stiffness. The fixed point is the exact
-quasi-static balance; the step is stable for any dt.
+integrated by exponential Euler with ``K_eff`` = backbone stiffness plus an estimate of the taut
+springs' stiffness: ``q += (1 - exp(-dt K_eff / c)) Q / K_eff``. The fixed point is the exact
+quasi-static balance and the step is stable for any dt.
 
-Within a step the order is: spring extensions from the current pose -> thermal/phase update
-(current, convection, latent heat, stress solved implicitly) -> spring forces -> pose update.
+Order within a step: spring extensions from the current pose -> currents (supply limit, energy
+budget) -> thermal/phase update per muscle (Joule heat, convection, latent heat and stress
+solved together) -> spring forces -> pose update.
+
+Energy budget: ``energy_left_J`` (N,) is debited by the electrical energy of every substep; a
+substep that would overdraw it has its currents scaled so that exactly the remainder is spent,
+so the budget is never exceeded and actuation stops once it is gone.
 """
 
 from __future__ import annotations
@@ -23,157 +31,245 @@ import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
+from numba import njit, prange
 
 from ..params import NeckParams
-from . import sma
 from .backbone import bend_angles, kinematics
-from .muscles import MuscleConstants, generalized_forces, muscle_geometry, spring_geometry
+from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_GAIN, CONV_TCOEF, COUPLING,
+                     DAMPING, FATIGUE_MAX, FATIGUE_RATE, FORCE_PER_SHEAR, FREE_LEN, FRICTION,
+                     G_A, G_M, GAMMA_L, HA, HEAD_R, HEAT_CAP, K_BEND, K_TWIST, LATENT_J,
+                     LATENT_K, LENGTH, LEVER_SQ, MF, MS, N_CONST, N_OUT, N_STATE, O_CONV,
+                     O_CURRENT, O_ENERGY, O_FORCE, O_PHI, O_POWER, O_THETA, PAYLOAD_COM,
+                     PAYLOAD_MG, PSI, R_A, R_M, S_FATIGUE, S_HEAT, S_Q, S_SCALE, S_T, S_VISCO,
+                     S_XI, SHEAR_PER_EXT, SUPPLY_V, THETA_SHEAR, VISCO_K, VISCO_TAU, WIRING_R)
+from .muscles import anchor_geometry, generalized_forces, spring_geometry
+from .sma import phase_thermal_step, resistance, spring_force, spring_rate
 
-DEFAULT_DT_S = 0.01  # physics step; see tests/test_physics.py::test_step_convergence
+DEFAULT_DT_S = 0.01  # physics step for experiments; see tests/test_physics.py
 SPRINGS_PER_MUSCLE = 2
+PARALLEL_FROM = 512  # rigs; below this the thread start-up costs more than it saves
+_CHUNK = 64
 
 
-class PlantConstants(NamedTuple):
-    sma: sma.SMAConstants
-    muscles: MuscleConstants
-    length_m: np.ndarray  # (B,)
-    bend_stiffness_Nm: np.ndarray  # (B, 1): EI / l
-    twist_stiffness_Nm: np.ndarray  # (B, 1): GJ / l
-    damping_Nms: np.ndarray  # (B, 1)
-    lever_sq_m2: np.ndarray  # (B, 1): (r_h cos alpha)^2 / 2, for the implicit stiffness estimate
-    n_rigs: int  # B
-
-    @classmethod
-    def from_params(cls, params: NeckParams | Sequence[NeckParams]) -> "PlantConstants":
-        plist = [params] if isinstance(params, NeckParams) else list(params)
-        if not plist:
-            raise ValueError("from_params needs at least one NeckParams")
-
-        def col(fn) -> np.ndarray:
-            return np.array([[float(fn(p))] for p in plist])
-
-        def sp(p):
-            return p.spring
-
-        def mat(p):
-            return p.material
-
-        G = lambda E, p: E / (2 * (1 + p.material.poisson_ratio))
-        spring_mass = lambda p: p.material.density_kg_m3 * sp(p).wire_area_m2 * sp(p).wire_length_m
-        wire_r = lambda p, rho: rho * sp(p).wire_length_m / sp(p).wire_area_m2
-        sc = sma.SMAConstants(
-            G_austenite_Pa=col(lambda p: G(mat(p).youngs_austenite_Pa, p)),
-            G_martensite_Pa=col(lambda p: G(mat(p).youngs_martensite_Pa, p)),
-            gamma_L=col(lambda p: sp(p).recoverable_shear_strain),
-            shear_per_extension_1_m=col(lambda p: sp(p).wire_diameter_m
-                                        / (math.pi * sp(p).active_coils * sp(p).coil_diameter_m**2)),
-            force_per_shear_m2=col(lambda p: sp(p).force_per_shear_stress_m2),
-            theta_shear_Pa_K=col(lambda p: mat(p).thermoelastic_Pa_per_K / math.sqrt(3)),
-            As_C=col(lambda p: mat(p).As_C),
-            Af_C=col(lambda p: mat(p).Af_C),
-            Ms_C=col(lambda p: mat(p).Ms_C),
-            Mf_C=col(lambda p: mat(p).Mf_C),
-            C_A_Pa_K=col(lambda p: mat(p).C_A_Pa_per_K),
-            C_M_Pa_K=col(lambda p: mat(p).C_M_Pa_per_K),
-            heat_capacity_J_K=col(lambda p: spring_mass(p) * mat(p).specific_heat_J_kgK),
-            latent_K=col(lambda p: mat(p).latent_heat_J_kg / mat(p).specific_heat_J_kgK),
-            latent_J=col(lambda p: spring_mass(p) * mat(p).latent_heat_J_kg),
-            R_martensite_ohm=col(lambda p: wire_r(p, mat(p).resistivity_martensite_ohm_m)),
-            R_austenite_ohm=col(lambda p: wire_r(p, mat(p).resistivity_austenite_ohm_m)),
-            hA_W_K=col(lambda p: p.thermal.convection_W_m2K * math.pi * sp(p).wire_diameter_m
-                       * sp(p).wire_length_m),
-            ambient_C=col(lambda p: p.thermal.ambient_C),
-        )
-        mcn = muscle_geometry(
-            azimuths_deg=[p.muscles.azimuths_deg for p in plist],
-            head_radius_m=[p.muscles.head_radius_m for p in plist],
-            base_radius_m=[p.muscles.base_radius_m for p in plist],
-            pennation_deg=[p.muscles.pennation_deg for p in plist],
-            length_m=[p.backbone.length_m for p in plist],
-            installed_extension_m=[sp(p).recoverable_extension_m + sp(p).pretension_extension_m
-                                   for p in plist],
-        )
-        return cls(
-            sma=sc,
-            muscles=mcn,
-            length_m=np.array([p.backbone.length_m for p in plist]),
-            bend_stiffness_Nm=col(lambda p: p.backbone.bending_stiffness_Nm2 / p.backbone.length_m),
-            twist_stiffness_Nm=col(lambda p: p.backbone.torsional_stiffness_Nm2 / p.backbone.length_m),
-            damping_Nms=col(lambda p: p.backbone.damping_Nms_per_rad),
-            lever_sq_m2=col(lambda p: 0.5 * (p.muscles.head_radius_m
-                                             * math.cos(math.radians(p.muscles.pennation_deg))) ** 2),
-            n_rigs=len(plist),
-        )
+def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarray:
+    """Pack one or many parameter sets into a ``(B, N_CONST)`` constants array (effects off)."""
+    plist = [params] if isinstance(params, NeckParams) else list(params)
+    if not plist:
+        raise ValueError("constants_from_params needs at least one NeckParams")
+    out = np.empty((len(plist), N_CONST))
+    for row, p in zip(out, plist):
+        sp, mat = p.spring, p.material
+        G = lambda E: E / (2 * (1 + mat.poisson_ratio))
+        mass = mat.density_kg_m3 * sp.wire_area_m2 * sp.wire_length_m
+        row[G_A] = G(mat.youngs_austenite_Pa)
+        row[G_M] = G(mat.youngs_martensite_Pa)
+        row[GAMMA_L] = sp.recoverable_shear_strain
+        row[SHEAR_PER_EXT] = sp.wire_diameter_m / (math.pi * sp.active_coils * sp.coil_diameter_m**2)
+        row[FORCE_PER_SHEAR] = sp.force_per_shear_stress_m2
+        row[THETA_SHEAR] = mat.thermoelastic_Pa_per_K / math.sqrt(3)
+        row[AS], row[AF], row[MS], row[MF] = mat.As_C, mat.Af_C, mat.Ms_C, mat.Mf_C
+        row[C_A], row[C_M] = mat.C_A_Pa_per_K, mat.C_M_Pa_per_K
+        row[HEAT_CAP] = mass * mat.specific_heat_J_kgK
+        row[LATENT_K] = mat.latent_heat_J_kg / mat.specific_heat_J_kgK
+        row[LATENT_J] = mass * mat.latent_heat_J_kg
+        row[R_M] = mat.resistivity_martensite_ohm_m * sp.wire_length_m / sp.wire_area_m2
+        row[R_A] = mat.resistivity_austenite_ohm_m * sp.wire_length_m / sp.wire_area_m2
+        row[HA] = p.thermal.convection_W_m2K * math.pi * sp.wire_diameter_m * sp.wire_length_m
+        row[AMBIENT] = p.thermal.ambient_C
+        bb, mu = p.backbone, p.muscles
+        row[LENGTH] = bb.length_m
+        row[K_BEND] = bb.bending_stiffness_Nm2 / bb.length_m
+        row[K_TWIST] = bb.torsional_stiffness_Nm2 / bb.length_m
+        row[DAMPING] = bb.damping_Nms_per_rad
+        row[LEVER_SQ] = 0.5 * (mu.head_radius_m * math.cos(math.radians(mu.pennation_deg))) ** 2
+        row[HEAD_R] = mu.head_radius_m
+        row[PSI:PSI + 3] = np.deg2rad(mu.azimuths_deg)
+        anchors, free = anchor_geometry(mu.azimuths_deg, mu.head_radius_m, mu.base_radius_m,
+                                        mu.pennation_deg, bb.length_m,
+                                        sp.recoverable_extension_m + sp.pretension_extension_m)
+        row[FREE_LEN] = free
+        row[ANCHOR:ANCHOR + 18] = anchors.ravel()
+        # Effects: neutral (see neck_env.effects for what switches them on).
+        row[PAYLOAD_MG] = 0.0
+        row[PAYLOAD_COM] = p.head.com_height_m
+        row[VISCO_K], row[VISCO_TAU] = 0.0, 1.0
+        row[FRICTION] = 0.0
+        row[SUPPLY_V], row[WIRING_R] = np.inf, 0.0
+        row[COUPLING] = 0.0
+        row[CONV_GAIN], row[CONV_TCOEF] = 1.0, 0.0
+        row[FATIGUE_RATE], row[FATIGUE_MAX] = 0.0, 0.0
+    return out
 
 
-class PlantState(NamedTuple):
-    phase: sma.PhaseState  # springs, (N, 3) each
-    q: np.ndarray  # (N, 3): bending vector (rad) and twist (rad)
+def initial_state(consts: np.ndarray, n_rigs: int | None = None) -> np.ndarray:
+    """Upright neck at rest: springs at ambient, fully martensite, on the cooling branch."""
+    n = consts.shape[0] if n_rigs is None else n_rigs
+    if consts.shape[0] not in (1, n):
+        raise ValueError(f"constants are for {consts.shape[0]} rigs, state asked for {n}")
+    x = np.zeros((n, N_STATE))
+    x[:, S_T:S_T + 3] = np.broadcast_to(consts[:, AMBIENT:AMBIENT + 1], (n, 3))
+    x[:, S_XI:S_XI + 3] = 1.0
+    return x
 
 
-class StepOutputs(NamedTuple):
-    theta_deg: np.ndarray  # (N,)
-    phi_deg: np.ndarray  # (N,) in [0, 360)
-    power_W: np.ndarray  # (N, 3): electrical power of each muscle (both springs)
-    muscle_force_N: np.ndarray  # (N, 3): tendon force magnitude
-    convection_W: np.ndarray  # (N, 3): heat convected away by each muscle (both springs)
+@njit(cache=True)
+def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit, ext, forces,
+                 qf, fmus, amps, temps):
+    """Advance one rig by n_sub substeps of dt; returns the energy budget left (J)."""
+    for k in range(3):
+        out[O_ENERGY + k] = 0.0
+        out[O_CURRENT + k] = 0.0
+        out[O_CONV + k] = 0.0
+    for _ in range(n_sub):
+        bx, by, eps = x[S_Q], x[S_Q + 1], x[S_Q + 2]
+        f1, f2 = kinematics(bx, by, c[LENGTH], tip, dtip, rot)
+        spring_geometry(c, bx, by, eps, f1, f2, tip, offset, unit, ext)
+        # Currents: commanded, limited by the supply's compliance voltage, then the budget.
+        e_sub = 0.0
+        for k in range(3):
+            r = resistance(c, x[S_XI + k])
+            a = abs(cur[k])
+            if c[SUPPLY_V] < np.inf:
+                a = min(a, c[SUPPLY_V] / (SPRINGS_PER_MUSCLE * r + c[WIRING_R]))
+            amps[k] = a
+            e_sub += SPRINGS_PER_MUSCLE * a * a * r * dt
+            temps[k] = x[S_T + k]
+        if e_sub > budget:
+            s = math.sqrt(budget / e_sub) if e_sub > 0.0 else 0.0
+            for k in range(3):
+                amps[k] *= s
+        budget = max(budget - min(e_sub, budget), 0.0)
+        k_springs = 0.0
+        for k in range(3):
+            coupling = 0.0
+            for j in range(3):
+                coupling += temps[j] - temps[k]
+            hA = c[HA] * c[CONV_GAIN] * (1.0 + c[CONV_TCOEF] * (temps[k] - c[AMBIENT]))
+            hA = max(hA, 1e-9)
+            gamma_L = c[GAMMA_L] * (1.0 - x[S_FATIGUE + k])
+            xi_old = x[S_XI + k]
+            T, xi, heating, scale, joule, conv = phase_thermal_step(
+                c, temps[k], xi_old, x[S_HEAT + k] > 0.5, x[S_SCALE + k], amps[k],
+                0.5 * (ext[k, 0] + ext[k, 1]), dt, c[COUPLING] * coupling, hA, gamma_L)
+            x[S_T + k] = T
+            x[S_XI + k] = xi
+            x[S_HEAT + k] = 1.0 if heating else 0.0
+            x[S_SCALE + k] = scale
+            if c[FATIGUE_RATE] > 0.0:
+                x[S_FATIGUE + k] = min(c[FATIGUE_MAX], x[S_FATIGUE + k] + c[FATIGUE_RATE] * abs(xi - xi_old))
+            out[O_ENERGY + k] += SPRINGS_PER_MUSCLE * joule
+            out[O_CONV + k] += SPRINGS_PER_MUSCLE * conv
+            out[O_CURRENT + k] += amps[k] / n_sub
+            for s in range(SPRINGS_PER_MUSCLE):
+                forces[k, s] = spring_force(c, ext[k, s], xi, T, gamma_L)
+                if forces[k, s] > 0.0:
+                    k_springs += spring_rate(c, xi)
+        generalized_forces(forces, unit, offset, dtip, rot, qf, fmus)
+        if c[PAYLOAD_MG] > 0.0:
+            # Gravity on the head's centre of mass at p(l) + h R_b z: Q_i = -m g dz_com/dq_i.
+            h = c[PAYLOAD_COM]
+            for i in range(3):
+                dz = dtip[i, 2] + h * (rot[i, 0] * rot[2, 1] - rot[i, 1] * rot[2, 0])
+                qf[i] -= c[PAYLOAD_MG] * dz
+        k_musc = k_springs * c[LEVER_SQ]
+        for i in range(3):
+            k_i = c[K_BEND] if i < 2 else c[K_TWIST]
+            qf[i] -= k_i * x[S_Q + i] + x[S_VISCO + i]
+        if c[FRICTION] > 0.0:
+            # Coulomb friction with stiction on bending: no motion until the net moment beats it.
+            mag = math.sqrt(qf[0] * qf[0] + qf[1] * qf[1])
+            keep = 0.0 if mag <= c[FRICTION] else 1.0 - c[FRICTION] / mag
+            qf[0] *= keep
+            qf[1] *= keep
+        for i in range(3):
+            k_i = (c[K_BEND] if i < 2 else c[K_TWIST]) + c[VISCO_K] + k_musc
+            dq = (1.0 - math.exp(-dt * k_i / c[DAMPING])) * qf[i] / k_i
+            x[S_Q + i] += dq
+            if c[VISCO_K] > 0.0:
+                # Maxwell branch of the standard linear solid, exact for constant q_dot.
+                decay = math.exp(-dt / c[VISCO_TAU])
+                x[S_VISCO + i] = (x[S_VISCO + i] * decay
+                                  + c[VISCO_K] * dq / dt * c[VISCO_TAU] * (1.0 - decay))
+    bx, by = x[S_Q], x[S_Q + 1]
+    out[O_THETA] = math.degrees(math.sqrt(bx * bx + by * by))
+    phi = math.degrees(math.atan2(by, bx)) % 360.0
+    out[O_PHI] = phi if phi < 360.0 else 0.0
+    for k in range(3):
+        out[O_POWER + k] = out[O_ENERGY + k] / (n_sub * dt)
+        out[O_CONV + k] /= n_sub * dt
+        out[O_FORCE + k] = math.sqrt(fmus[k, 0] ** 2 + fmus[k, 1] ** 2 + fmus[k, 2] ** 2)
+    return budget
 
 
-def initial_state(pc: PlantConstants, n_rigs: int | None = None) -> PlantState:
-    """Upright neck, springs at ambient and fully martensite."""
-    n = pc.n_rigs if n_rigs is None else n_rigs
-    if pc.n_rigs not in (1, n):
-        raise ValueError(f"constants are for {pc.n_rigs} rigs, state asked for {n}")
-    return PlantState(sma.initial_phase_state(pc.sma, n), np.zeros((n, 3)))
+@njit(cache=True)
+def _advance_range(consts, state, cur, dt, n_sub, budget, out, start, stop):
+    tip, dtip, rot = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
+    offset, unit, ext = np.empty((3, 3)), np.empty((3, 2, 3)), np.empty((3, 2))
+    forces, qf, fmus = np.empty((3, 2)), np.empty(3), np.empty((3, 3))
+    amps, temps = np.empty(3), np.empty(3)
+    shared = consts.shape[0] == 1
+    for i in range(start, stop):
+        c = consts[0] if shared else consts[i]
+        budget[i] = _advance_rig(c, state[i], cur[i], dt, n_sub, budget[i], out[i], tip, dtip,
+                                 rot, offset, unit, ext, forces, qf, fmus, amps, temps)
 
 
-def check_currents(current_A: np.ndarray, n_rigs: int) -> np.ndarray:
+@njit(cache=True)
+def _step_serial(consts, state, cur, dt, n_sub, budget, out):
+    _advance_range(consts, state, cur, dt, n_sub, budget, out, 0, state.shape[0])
+
+
+@njit(cache=True, parallel=True)
+def _step_parallel(consts, state, cur, dt, n_sub, budget, out):
+    n = state.shape[0]
+    n_chunks = (n + _CHUNK - 1) // _CHUNK
+    for ch in prange(n_chunks):
+        _advance_range(consts, state, cur, dt, n_sub, budget, out, ch * _CHUNK, min(n, (ch + 1) * _CHUNK))
+
+
+def step_inplace(consts: np.ndarray, state: np.ndarray, currents_A: np.ndarray, dt_s: float,
+                 n_substeps: int, energy_left_J: np.ndarray, out: np.ndarray) -> None:
+    """Advance ``state`` (N, N_STATE) in place by ``n_substeps`` x ``dt_s``; fill ``out``.
+
+    No validation (the caller owns it): float64 C-contiguous arrays, ``currents_A`` (N, 3)
+    finite, ``energy_left_J`` (N,) debited in place, ``consts`` (1 or N, N_CONST).
+    """
+    fn = _step_parallel if state.shape[0] >= PARALLEL_FROM else _step_serial
+    fn(consts, state, currents_A, dt_s, n_substeps, energy_left_J, out)
+
+
+def check_currents(current_A, n_rigs: int) -> np.ndarray:
     """Validate currents: finite, shape (N, 3). Sign is irrelevant to Joule heating."""
     cur = np.asarray(current_A, dtype=float)
     if cur.shape != (n_rigs, 3):
         raise ValueError(f"currents must have shape ({n_rigs}, 3), got {cur.shape}")
     if not np.all(np.isfinite(cur)):
         raise ValueError(f"currents must be finite, got {cur[~np.isfinite(cur)][:3]}")
-    return cur
+    return np.ascontiguousarray(cur)
 
 
-def step(pc: PlantConstants, state: PlantState, current_A: np.ndarray, dt_s: float,
-         extra_heat_W: np.ndarray | float = 0.0, hA_W_K: np.ndarray | None = None,
-         extra_q_force: np.ndarray | float = 0.0) -> tuple[PlantState, StepOutputs]:
-    """Advance N rigs by ``dt_s`` with muscle currents ``current_A`` (N, 3).
-
-    ``extra_heat_W`` (per spring), ``hA_W_K`` and ``extra_q_force`` (N, 3) are hooks for the
-    effect catalogue; the nominal plant uses none of them.
-    """
-    q = state.q
-    cur = check_currents(current_A, q.shape[0])
-    kin = kinematics(q, pc.length_m)
-    geo = spring_geometry(pc.muscles, kin, q[:, 2])
-    th = sma.phase_thermal_step(pc.sma, state.phase, cur, geo.extension_m.mean(axis=-1), dt_s,
-                                extra_heat_W=extra_heat_W, hA_W_K=hA_W_K)
-    ph = th.state
-    forces = np.stack([sma.spring_force(pc.sma, geo.extension_m[..., s], ph.xi, ph.T_C)
-                       for s in range(SPRINGS_PER_MUSCLE)], axis=-1)  # (N, 3, 2)
-    q_force, f_muscle = generalized_forces(kin, geo, forces)
-    stiffness = np.concatenate([pc.bend_stiffness_Nm, pc.bend_stiffness_Nm, pc.twist_stiffness_Nm], -1)
-    q_force = q_force - stiffness * q + extra_q_force
-    # Implicit-stiffness estimate from the taut springs (only shapes transients, not equilibria).
-    k_spring = sma.spring_rate(pc.sma, ph.xi)[..., None] * (forces > 0)
-    k_eff = stiffness + (k_spring.sum(axis=(1, 2)) * pc.lever_sq_m2[:, 0])[:, None]
-    q_new = q + dt_s * q_force / (pc.damping_Nms + dt_s * k_eff)
-    theta, phi = bend_angles(q_new)
-    out = StepOutputs(
-        theta_deg=np.rad2deg(theta),
-        phi_deg=np.rad2deg(phi),
-        power_W=SPRINGS_PER_MUSCLE * th.joule_W,
-        muscle_force_N=np.linalg.norm(f_muscle, axis=-1),
-        convection_W=SPRINGS_PER_MUSCLE * th.convection_W,
-    )
-    return PlantState(ph, q_new), out
+def step(consts: np.ndarray, state: np.ndarray, currents_A, dt_s: float, n_substeps: int = 1,
+         energy_left_J: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pure step: returns (new state, outputs (N, N_OUT), energy left (N,))."""
+    state = np.array(state, dtype=float, order="C")
+    n = state.shape[0]
+    if state.ndim != 2 or state.shape[1] != N_STATE:
+        raise ValueError(f"state must have shape (N, {N_STATE}), got {state.shape}")
+    if consts.ndim != 2 or consts.shape[1] != N_CONST or consts.shape[0] not in (1, n):
+        raise ValueError(f"constants must have shape (1 or {n}, {N_CONST}), got {consts.shape}")
+    if not (dt_s > 0 and math.isfinite(dt_s)) or n_substeps < 1:
+        raise ValueError(f"need dt_s > 0 and n_substeps >= 1, got {dt_s}, {n_substeps}")
+    cur = check_currents(currents_A, n)
+    left = (np.full(n, np.inf) if energy_left_J is None
+            else np.array(np.broadcast_to(energy_left_J, (n,)), dtype=float))
+    out = np.empty((n, N_OUT))
+    step_inplace(np.ascontiguousarray(consts, dtype=float), state, cur, float(dt_s),
+                 int(n_substeps), left, out)
+    return state, out, left
 
 
 class Trajectory(NamedTuple):
-    """Time series of a batched simulation; leading axis is time (steps)."""
+    """Time series of a batched simulation; leading axis is time (steps), then rigs."""
 
     t_s: np.ndarray  # (S,)
     theta_deg: np.ndarray  # (S, N)
@@ -182,30 +278,42 @@ class Trajectory(NamedTuple):
     xi: np.ndarray  # (S, N, 3)
     power_W: np.ndarray  # (S, N, 3)
     muscle_force_N: np.ndarray  # (S, N, 3)
-    tau_Pa: np.ndarray | None = None
+    current_A: np.ndarray  # (S, N, 3): what flowed (after supply limit / budget)
+    q: np.ndarray  # (S, N, 3)
 
 
-def simulate(pc: PlantConstants, currents_A: np.ndarray, dt_s: float = DEFAULT_DT_S,
-             state: PlantState | None = None) -> tuple[Trajectory, PlantState]:
-    """Run ``currents_A`` of shape (S, N, 3) (one row per step); returns the trajectory after
-    each step (t = dt, 2 dt, ...) and the final state."""
+def simulate(consts: np.ndarray, currents_A: np.ndarray, dt_s: float = DEFAULT_DT_S,
+             state: np.ndarray | None = None) -> tuple[Trajectory, np.ndarray]:
+    """Run currents (S, N, 3), one row per step of ``dt_s``; returns the trajectory after each
+    step (t = dt, 2 dt, ...) and the final state."""
     currents_A = np.asarray(currents_A, float)
     if currents_A.ndim != 3 or currents_A.shape[2] != 3:
         raise ValueError(f"currents_A must have shape (steps, rigs, 3), got {currents_A.shape}")
-    n = currents_A.shape[1]
-    st = initial_state(pc, n) if state is None else state
-    rec = {k: [] for k in ("theta_deg", "phi_deg", "T_C", "xi", "power_W", "muscle_force_N")}
-    for k in range(currents_A.shape[0]):
-        st, out = step(pc, st, currents_A[k], dt_s)
-        rec["theta_deg"].append(out.theta_deg)
-        rec["phi_deg"].append(out.phi_deg)
-        rec["T_C"].append(st.phase.T_C)
-        rec["xi"].append(st.phase.xi)
-        rec["power_W"].append(out.power_W)
-        rec["muscle_force_N"].append(out.muscle_force_N)
-    t = dt_s * np.arange(1, currents_A.shape[0] + 1)
-    return Trajectory(t, *(np.array(rec[k]) for k in ("theta_deg", "phi_deg", "T_C", "xi",
-                                                       "power_W", "muscle_force_N"))), st
+    if not np.all(np.isfinite(currents_A)):
+        raise ValueError("currents_A must be finite")
+    n_steps, n = currents_A.shape[:2]
+    x = initial_state(consts, n) if state is None else np.array(state, dtype=float, order="C")
+    consts = np.ascontiguousarray(consts, dtype=float)
+    left = np.full(n, np.inf)
+    out = np.empty((n, N_OUT))
+    rec_out = np.empty((n_steps, n, N_OUT))
+    rec_x = np.empty((n_steps, n, N_STATE))
+    for k in range(n_steps):
+        step_inplace(consts, x, np.ascontiguousarray(currents_A[k]), dt_s, 1, left, out)
+        rec_out[k] = out
+        rec_x[k] = x
+    traj = Trajectory(
+        t_s=dt_s * np.arange(1, n_steps + 1),
+        theta_deg=rec_out[:, :, O_THETA],
+        phi_deg=rec_out[:, :, O_PHI],
+        T_C=rec_x[:, :, S_T:S_T + 3],
+        xi=rec_x[:, :, S_XI:S_XI + 3],
+        power_W=rec_out[:, :, O_POWER:O_POWER + 3],
+        muscle_force_N=rec_out[:, :, O_FORCE:O_FORCE + 3],
+        current_A=rec_out[:, :, O_CURRENT:O_CURRENT + 3],
+        q=rec_x[:, :, S_Q:S_Q + 3],
+    )
+    return traj, x
 
 
 def pulse_currents(current_A: Sequence[float] | np.ndarray, muscle: int, on_s: float,
@@ -218,3 +326,9 @@ def pulse_currents(current_A: Sequence[float] | np.ndarray, muscle: int, on_s: f
     cur = np.zeros((steps, amps.size, 3))
     cur[:, :, muscle] = on[:, None] * amps[None, :]
     return cur
+
+
+def pose_angles_deg(state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(theta, phi) in degrees from a state array (N, N_STATE)."""
+    theta, phi = bend_angles(state[:, S_Q:S_Q + 3])
+    return np.rad2deg(theta), np.rad2deg(phi)
