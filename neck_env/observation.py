@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 from gymnasium import spaces
-from numba import njit
+from .physics.compile import jit
 
 OBS_NAMES = ("tilt_x_deg", "tilt_y_deg", "T1_C", "T2_C", "T3_C", "target_x_deg", "target_y_deg",
              "energy_left_frac")
@@ -41,7 +41,7 @@ def observation_space() -> spaces.Box:
     return spaces.Box(OBS_LOW, OBS_HIGH, dtype=np.float32)
 
 
-@njit(cache=True)
+@jit
 def tilt_from_accel(ax, ay, az):
     """Tilt vector (deg) of the IMU z axis from gravity as the accelerometer sees it (any unit).
 
@@ -55,7 +55,7 @@ def tilt_from_accel(ax, ay, az):
     return -theta * ax / horiz, -theta * ay / horiz
 
 
-@njit(cache=True)
+@jit
 def fuse_tilt(bx, by, ax, ay, az, gx_dps, gy_dps, dt_s, tau_s):
     """One complementary-filter update of the tilt vector (deg).
 
@@ -70,7 +70,7 @@ def fuse_tilt(bx, by, ax, ay, az, gx_dps, gy_dps, dt_s, tau_s):
     return px + w * (mx - px), py + w * (my - py)
 
 
-@njit(cache=True)
+@jit
 def fill_observation(obs, tilt_x, tilt_y, T1, T2, T3, target_x, target_y, energy_frac):
     obs[0] = tilt_x
     obs[1] = tilt_y

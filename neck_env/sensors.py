@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from .physics.compile import jit
 
 from .physics.backbone import kinematics, rotate_bend
 
@@ -48,7 +48,7 @@ _MIX2 = np.uint64(0x94D049BB133111EB)
 _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
 
 
-@njit(cache=True)
+@jit
 def next_uniform(rng, i):
     """Uniform in (0, 1] from the splitmix64 stream ``rng[i]`` (advanced in place)."""
     z = rng[i] + _GOLDEN
@@ -59,15 +59,26 @@ def next_uniform(rng, i):
     return ((z >> _S11) + np.uint64(1)) * (1.0 / 9007199254740992.0)
 
 
-@njit(cache=True)
+_U16 = np.uint64(0xFFFF)
+_S16, _S32, _S48 = np.uint64(16), np.uint64(32), np.uint64(48)
+
+
+@jit
 def next_normal(rng, i):
-    """Standard normal (Box-Muller, one value per call)."""
-    u1 = next_uniform(rng, i)
-    u2 = next_uniform(rng, i)
-    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+    """Approximately standard normal: the sum of four 16-bit uniforms of one draw (Irwin-Hall),
+    centred and scaled to unit variance; bounded at +-3.46. Five times cheaper than Box-Muller,
+    which matters at 4096 envs x 8 sensor channels per step."""
+    z = rng[i] + _GOLDEN
+    rng[i] = z
+    z = (z ^ (z >> _S30)) * _MIX1
+    z = (z ^ (z >> _S27)) * _MIX2
+    z = z ^ (z >> _S31)
+    total = float((z & _U16) + ((z >> _S16) & _U16) + ((z >> _S32) & _U16) + (z >> _S48))
+    # Sum of four U{0..65535}: mean 131070, variance 4 * (65536^2 - 1) / 12.
+    return (total - 131070.0) * (1.0 / 37837.23)
 
 
-@njit(cache=True)
+@jit
 def imu_reading(q, q_prev, dt_s, mount, scratch_tip, scratch_dtip, scratch_rot, v, w, out):
     """Noise-free IMU reading for pose q after a step from q_prev.
 

@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from .physics.compile import jit
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ def sample_targets(spec: TargetSpec, episode_s: float, rng: np.random.Generator,
     return t0, ramp, way, n
 
 
-@njit(cache=True)
+@jit
 def target_at(t, t0, ramp, way, n):
     """Target tilt vector (deg) at time t for one trajectory."""
     j = 0
@@ -88,7 +88,7 @@ def target_at(t, t0, ramp, way, n):
     return x, y
 
 
-@njit(cache=True)
+@jit
 def tracking_error_deg(tilt_x, tilt_y, target_x, target_y):
     """Distance between the head's and the target's tilt vectors (deg).
 

@@ -14,13 +14,15 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
+
+from ..physics.compile import jit
 
 from .. import effects as fx
 from ..observation import FILTER_TAU_S, OBS_DIM, fill_observation, fuse_tilt, tilt_from_accel
 from ..params import NeckParams, default_params
 from ..physics import layout as L
-from ..physics.plant import PARALLEL_FROM, constants_from_params, initial_state, step_inplace
+from ..physics.plant import PARALLEL_FROM, _advance_rig, constants_from_params, initial_state
 from ..sensors import SensorParams, imu_reading, next_normal
 from ..targets import TargetSpec, sample_targets, target_at, tracking_error_deg
 
@@ -129,64 +131,132 @@ def resolve_effects(effects) -> tuple[dict[str, dict[str, float]], tuple[str, ..
 
 
 def validate_action(action, mode: str, n: int, single: bool) -> np.ndarray:
-    """Check an action batch and return currents-to-be (N, 3) float64, or raise ValueError."""
+    """Check an action (batch) and return it as (N, 3) float64, or raise ValueError naming why."""
     a = np.asarray(action)
     want = (3,) if single else (n, 3)
     if a.shape != want:
         raise ValueError(f"action must have shape {want}, got {a.shape}")
     if a.dtype.kind not in "biuf":
         raise ValueError(f"action must be numeric, got dtype {a.dtype}")
-    a = a.astype(np.float64).reshape(n, 3)
-    if not np.isfinite(a).all():
+    a = np.asarray(a, dtype=np.float64).reshape(n, 3)
+    code = check_action(a, mode == "relay", MAX_CURRENT_A)
+    if code == 1:
         raise ValueError(f"action must be finite, got {a[~np.isfinite(a)][:3]}")
-    if mode == "relay":
-        if not np.isin(a, (0.0, 1.0)).all():
-            raise ValueError(f"relay action must be 0 or 1 per muscle, got {a[~np.isin(a, (0.0, 1.0))][:3]}")
-    elif a.min() < 0.0 or a.max() > MAX_CURRENT_A:
+    if code == 2:
+        raise ValueError(f"relay action must be 0 or 1 per muscle, got "
+                         f"{a[~np.isin(a, (0.0, 1.0))][:3]}")
+    if code == 3:
         raise ValueError(f"current action must lie in [0, {MAX_CURRENT_A}] A, got "
                          f"min {a.min():.4g}, max {a.max():.4g}")
     return a
 
 
-@njit(cache=True)
-def _sense_range(x, q_prev, dt, t_s, mount, accel_bias, gyro_bias, drift, a_sig, g_sig, T_sig,
-                 rng, filt, first, t0, ramp, way, nseg, energy_left, budget, obs, reward, err,
-                 target, start, stop):
+# Per-env auxiliary columns (besides the plant state): host-side bookkeeping and sensors.
+A_QPREV = 0  # 0..2: pose before the step (for the gyro)
+A_LEFT = 3  # energy budget left, J
+A_USED = 4  # energy used this episode, J
+A_TIDX = 5  # steps taken this episode
+A_TS = 6  # time in the episode, s
+A_FILT = 7  # 7..8: complementary-filter tilt vector, deg
+A_ABIAS = 9  # 9..11: accelerometer bias, g
+A_GBIAS = 12  # 12..14: gyro bias, deg/s
+A_DRIFT = 15  # gyro bias growth, deg/s per s
+A_TARGET = 16  # 16..17: target tilt vector, deg
+A_ERR = 18  # tracking error, deg
+A_REWARD = 19
+A_DELAY = 20  # actuation delay, steps
+A_NSEG = 21  # target segments in use
+A_TTHETA = 22  # target theta, deg
+A_TPHI = 23  # target phi, deg in [0, 360)
+N_AUX = 24
+
+
+@jit
+def _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget, a_sig,
+          g_sig, T_sig, physics, first, start, stop):
+    """Advance (if ``physics``) and observe envs start..stop. One compiled pass per env."""
     tip, dtip, rot = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
+    offset, unit, ext = np.empty((3, 3)), np.empty((3, 2, 3)), np.empty((3, 2))
+    forces, qf, fmus = np.empty((3, 2)), np.empty(3), np.empty((3, 3))
+    amps, temps, applied = np.empty(3), np.empty(3), np.empty(3)
     v, w, r = np.empty(3), np.empty(3), np.empty(6)
+    shared = consts.shape[0] == 1
     for i in range(start, stop):
-        q = x[i, L.S_Q:L.S_Q + 3]
-        imu_reading(q, q_prev[i], dt, mount[i], tip, dtip, rot, v, w, r)
-        for j in range(3):
-            r[j] += accel_bias[i, j] + a_sig * next_normal(rng, i)
-            r[3 + j] += gyro_bias[i, j] + drift[i] * t_s[i] + g_sig * next_normal(rng, i)
+        c = consts[0] if shared else consts[i]
+        xi_row, a = x[i], aux[i]
+        if physics:
+            d = int(a[A_DELAY])
+            tix = int(a[A_TIDX])
+            if d > 0:
+                depth = delay_buf.shape[1]
+                for k in range(3):
+                    delay_buf[i, tix % depth, k] = cur[i, k]
+                    applied[k] = delay_buf[i, (tix - d) % depth, k] if tix >= d else 0.0
+            else:
+                for k in range(3):
+                    applied[k] = cur[i, k]
+            for k in range(3):
+                a[A_QPREV + k] = xi_row[L.S_Q + k]
+            a[A_LEFT] = _advance_rig(c, xi_row, applied, dt, 1, a[A_LEFT], out[i], tip, dtip,
+                                     rot, offset, unit, ext, forces, qf, fmus, amps, temps)
+            a[A_USED] += out[i, L.O_ENERGY] + out[i, L.O_ENERGY + 1] + out[i, L.O_ENERGY + 2]
+            a[A_TIDX] = tix + 1
+            a[A_TS] = (tix + 1) * dt
+        # Sensors: IMU (bias, noise, growing gyro bias) -> rig tilt pipeline; thermistors.
+        q = xi_row[L.S_Q:L.S_Q + 3]
+        imu_reading(q, a[A_QPREV:A_QPREV + 3], dt, mount[i], tip, dtip, rot, v, w, r)
+        n0, n1, n2 = next_normal(rng, i), next_normal(rng, i), next_normal(rng, i)
+        n3, n4 = next_normal(rng, i), next_normal(rng, i)
+        n5, n6, n7 = next_normal(rng, i), next_normal(rng, i), next_normal(rng, i)
+        drift = a[A_DRIFT] * a[A_TS]
+        ax = r[0] + a[A_ABIAS] + a_sig * n0
+        ay = r[1] + a[A_ABIAS + 1] + a_sig * n1
+        az = r[2] + a[A_ABIAS + 2] + a_sig * n2
+        gx = r[3] + a[A_GBIAS] + drift + g_sig * n3
+        gy = r[4] + a[A_GBIAS + 1] + drift + g_sig * n4
         if first:
-            filt[i, 0], filt[i, 1] = tilt_from_accel(r[0], r[1], r[2])
+            fx_, fy_ = tilt_from_accel(ax, ay, az)
         else:
-            filt[i, 0], filt[i, 1] = fuse_tilt(filt[i, 0], filt[i, 1], r[0], r[1], r[2], r[3], r[4],
-                                               dt, FILTER_TAU_S)
-        T1 = x[i, L.S_T] + T_sig * next_normal(rng, i)
-        T2 = x[i, L.S_T + 1] + T_sig * next_normal(rng, i)
-        T3 = x[i, L.S_T + 2] + T_sig * next_normal(rng, i)
-        tx, ty = target_at(t_s[i], t0[i], ramp[i], way[i], nseg[i])
-        target[i, 0], target[i, 1] = tx, ty
+            fx_, fy_ = fuse_tilt(a[A_FILT], a[A_FILT + 1], ax, ay, az, gx, gy, dt, FILTER_TAU_S)
+        a[A_FILT], a[A_FILT + 1] = fx_, fy_
+        tx, ty = target_at(a[A_TS], targets[i, :, 0], targets[i, :, 1], targets[i, :, 2:4],
+                           int(a[A_NSEG]))
+        a[A_TARGET], a[A_TARGET + 1] = tx, ty
+        a[A_TTHETA] = math.sqrt(tx * tx + ty * ty)
+        a[A_TPHI] = math.degrees(math.atan2(ty, tx)) % 360.0
         e = tracking_error_deg(math.degrees(q[0]), math.degrees(q[1]), tx, ty)
-        err[i] = e
-        reward[i] = -e
-        frac = energy_left[i] / budget if budget < np.inf else 1.0
-        fill_observation(obs[i], filt[i, 0], filt[i, 1], T1, T2, T3, tx, ty, frac)
+        a[A_ERR] = e
+        a[A_REWARD] = -e
+        frac = a[A_LEFT] / budget if budget < np.inf else 1.0
+        fill_observation(obs[i], fx_, fy_, xi_row[L.S_T] + T_sig * n5,
+                         xi_row[L.S_T + 1] + T_sig * n6, xi_row[L.S_T + 2] + T_sig * n7,
+                         tx, ty, frac)
 
 
-@njit(cache=True, parallel=True)
-def _sense_parallel(x, q_prev, dt, t_s, mount, accel_bias, gyro_bias, drift, a_sig, g_sig, T_sig,
-                    rng, filt, first, t0, ramp, way, nseg, energy_left, budget, obs, reward, err,
-                    target):
+@jit(parallel=True)
+def _rows_parallel(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget,
+                   a_sig, g_sig, T_sig, physics, first):
     n = x.shape[0]
     chunks = (n + 63) // 64
-    for c in prange(chunks):
-        _sense_range(x, q_prev, dt, t_s, mount, accel_bias, gyro_bias, drift, a_sig, g_sig, T_sig,
-                     rng, filt, first, t0, ramp, way, nseg, energy_left, budget, obs, reward, err,
-                     target, c * 64, min(n, (c + 1) * 64))
+    for ch in prange(chunks):
+        _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget, a_sig,
+              g_sig, T_sig, physics, first, ch * 64, min(n, (ch + 1) * 64))
+
+
+@jit
+def check_action(a, relay, max_current):
+    """0 if the (N, 3) float64 action is valid, else 1 non-finite, 2 not 0/1, 3 out of range."""
+    for i in range(a.shape[0]):
+        for k in range(3):
+            v = a[i, k]
+            if not math.isfinite(v):
+                return 1
+            if relay:
+                if v != 0.0 and v != 1.0:
+                    return 2
+            elif v < 0.0 or v > max_current:
+                return 3
+    return 0
 
 
 class NeckTrackCore:
@@ -196,50 +266,39 @@ class NeckTrackCore:
                  sensors: SensorParams, randomize: bool | Randomization, effects):
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        self.n = int(num_envs)
+        if randomize not in (True, False, None) and not isinstance(randomize, Randomization):
+            raise ValueError(f"randomize must be a bool or a Randomization, got {randomize!r}")
+        self.n = n = int(num_envs)
         self.task = task
         self.params = params
         self.sensors = sensors
         self.randomization = (Randomization() if randomize is True else
                               (randomize if isinstance(randomize, Randomization) else None))
-        if randomize not in (True, False, None) and not isinstance(randomize, Randomization):
-            raise ValueError(f"randomize must be a bool or a Randomization, got {randomize!r}")
         self.fixed_effects, self.sampled_effects = resolve_effects(effects)
         self.base_consts = constants_from_params(params)
-        n, m = self.n, task.targets.max_segments(task.episode_s)
+        m = task.targets.max_segments(task.episode_s)
         self.consts = np.repeat(self.base_consts, n, axis=0)
         self.x = initial_state(self.base_consts, n)
-        self.q_prev = np.zeros((n, 3))
-        self.energy_left = np.full(n, float(task.energy_budget_J))
-        self.energy_used = np.zeros(n)
+        self.aux = np.zeros((n, N_AUX))
         self.out = np.zeros((n, L.N_OUT))
         self.rng_stream = np.zeros(n, dtype=np.uint64)
-        self.accel_bias = np.zeros((n, 3))
-        self.gyro_bias = np.zeros((n, 3))
         self.mount = np.repeat(np.eye(3)[None], n, axis=0)
-        self.drift = np.zeros(n)
-        self.filt = np.zeros((n, 2))
-        self.t0 = np.full((n, m), np.inf)
-        self.ramp = np.zeros((n, m))
-        self.way = np.zeros((n, m, 2))
-        self.nseg = np.ones(n, dtype=np.int64)
-        self.t_index = np.zeros(n, dtype=np.int64)
-        self.t_s = np.zeros(n)
-        self.delay_steps = np.zeros(n, dtype=np.int64)
-        self.delay_buffer: np.ndarray | None = None
-        self.episode_effects: list[dict[str, dict[str, float]]] = [{} for _ in range(n)]
+        self.targets = np.zeros((n, m, 4))
+        self.delay_buffer = np.zeros((n, 1, 3))
         self.obs = np.zeros((n, OBS_DIM), dtype=np.float32)
-        self.reward = np.zeros(n)
-        self.err = np.zeros(n)
-        self.target = np.zeros((n, 2))
-        self.currents_cmd = np.zeros((n, 3))
+        self.episode_effects: list[dict[str, dict[str, float]]] = [{} for _ in range(n)]
         self.generators = [np.random.default_rng() for _ in range(n)]
-        self._any_delay = False
+        self._budget = float(task.energy_budget_J)
+        self._parallel = n >= PARALLEL_FROM
+        # Every env on the same plant: let the kernel share one constants row (less memory
+        # traffic at large N). Randomization or plant effects give each env its own row.
+        self._shared_consts = (self.randomization is None and not self.sampled_effects
+                               and not any(fx.EFFECTS[e].kind == "plant" for e in self.fixed_effects))
 
     # -- reset ------------------------------------------------------------------------------
     def reset(self, ids: np.ndarray, seeds: Sequence[int | None] | None) -> None:
         """Start a new episode in envs ``ids``; ``seeds`` (same length) reseed their generators."""
-        spec, base = self.task.targets, self.base_consts[0]
+        spec, base, s = self.task.targets, self.base_consts[0], self.sensors
         for k, i in enumerate(ids):
             if seeds is not None and seeds[k] is not None:
                 self.generators[i] = np.random.default_rng(seeds[k])
@@ -253,78 +312,70 @@ class NeckTrackCore:
             self.episode_effects[i] = eff
             self.consts[i] = fx.apply_to_constants(row[None], eff)[0]
             self.mount[i] = fx.imu_mount(eff)
-            self.drift[i] = fx.gyro_drift(eff)
-            self.delay_steps[i] = int(round(fx.delay_s(eff) / self.task.dt))
-            t0, ramp, way, nseg = sample_targets(spec, self.task.episode_s, g, self.t0.shape[1])
-            self.t0[i], self.ramp[i], self.way[i], self.nseg[i] = t0, ramp, way, nseg
-            s = self.sensors
-            self.accel_bias[i] = g.normal(0.0, s.accel_bias_g, 3) if s.accel_bias_g > 0 else 0.0
-            self.gyro_bias[i] = g.normal(0.0, s.gyro_bias_dps, 3) if s.gyro_bias_dps > 0 else 0.0
+            t0, ramp, way, nseg = sample_targets(spec, self.task.episode_s, g, self.targets.shape[1])
+            self.targets[i, :, 0], self.targets[i, :, 1], self.targets[i, :, 2:4] = t0, ramp, way
+            a = self.aux[i]
+            a[:] = 0.0
+            a[A_LEFT] = self._budget
+            a[A_NSEG] = nseg
+            a[A_DRIFT] = fx.gyro_drift(eff)
+            a[A_DELAY] = int(round(fx.delay_s(eff) / self.task.dt))
+            a[A_ABIAS:A_ABIAS + 3] = g.normal(0.0, s.accel_bias_g, 3) if s.accel_bias_g > 0 else 0.0
+            a[A_GBIAS:A_GBIAS + 3] = g.normal(0.0, s.gyro_bias_dps, 3) if s.gyro_bias_dps > 0 else 0.0
             self.rng_stream[i] = np.uint64(g.integers(0, 2**63))
         ids = np.asarray(ids, dtype=np.int64)
         self.x[ids] = initial_state(self.consts[ids])
-        self.q_prev[ids] = 0.0
-        self.energy_left[ids] = self.task.energy_budget_J
-        self.energy_used[ids] = 0.0
-        self.t_index[ids] = 0
-        self.t_s[ids] = 0.0
         self.out[ids] = 0.0
-        self.currents_cmd[ids] = 0.0
-        self._any_delay = bool(self.delay_steps.any())
-        if self._any_delay:
-            depth = int(self.delay_steps.max()) + 1
-            if self.delay_buffer is None or self.delay_buffer.shape[1] < depth:
-                self.delay_buffer = np.zeros((self.n, depth, 3))
-            self.delay_buffer[ids] = 0.0
-        self._run_sense(first=True, ids=ids)
+        depth = int(self.aux[:, A_DELAY].max()) + 1
+        if self.delay_buffer.shape[1] < depth:
+            self.delay_buffer = np.zeros((self.n, depth, 3))
+        self.delay_buffer[ids] = 0.0
+        if len(ids) == self.n:
+            self._run(None, physics=False, first=True)
+        else:
+            for i in ids:
+                self._run(None, physics=False, first=True, rows=(int(i), int(i) + 1))
 
     # -- step -------------------------------------------------------------------------------
     def step(self, currents: np.ndarray) -> None:
         """Advance all envs by one control period with commanded currents (N, 3) in amperes."""
-        self.currents_cmd = currents
-        applied = currents
-        if self._any_delay:
-            buf = self.delay_buffer
-            slot = self.t_index % buf.shape[1]
-            rows = np.arange(self.n)
-            buf[rows, slot] = currents
-            applied = buf[rows, (self.t_index - self.delay_steps) % buf.shape[1]]
-            applied = np.where((self.t_index >= self.delay_steps)[:, None], applied, 0.0)
-        np.copyto(self.q_prev, self.x[:, L.S_Q:L.S_Q + 3])
-        step_inplace(self.consts, self.x, np.ascontiguousarray(applied), self.task.dt, 1,
-                     self.energy_left, self.out)
-        self.energy_used += self.out[:, L.O_ENERGY:L.O_ENERGY + 3].sum(axis=1)
-        self.t_index += 1
-        self.t_s = self.t_index * self.task.dt
-        self._run_sense(first=False, ids=None)
+        self._run(currents, physics=True, first=False)
 
-    def _run_sense(self, first: bool, ids: np.ndarray | None) -> None:
-        """Sensors, target, reward and observation for all envs, or only ``ids``."""
+    def _run(self, currents, physics: bool, first: bool, rows: tuple[int, int] | None = None) -> None:
         s = self.sensors
-        args = (self.x, self.q_prev, self.task.dt, self.t_s, self.mount, self.accel_bias,
-                self.gyro_bias, self.drift, s.accel_noise_g, s.gyro_noise_dps,
-                s.temperature_noise_C, self.rng_stream, self.filt, first, self.t0, self.ramp,
-                self.way, self.nseg, self.energy_left, float(self.task.energy_budget_J),
-                self.obs, self.reward, self.err, self.target)
-        if ids is None or len(ids) == self.n:
-            if self.n >= PARALLEL_FROM:
-                _sense_parallel(*args)
-            else:
-                _sense_range(*args, 0, self.n)
+        cur = self.out if currents is None else currents  # unused when physics is False
+        consts = self.consts[:1] if self._shared_consts else self.consts
+        args = (consts, self.x, self.aux, self.out, self.rng_stream, self.mount,
+                self.targets, self.obs, cur, self.delay_buffer, self.task.dt, self._budget,
+                s.accel_noise_g, s.gyro_noise_dps, s.temperature_noise_C, physics, first)
+        if rows is not None:
+            _rows(*args, rows[0], rows[1])
+        elif self._parallel:
+            _rows_parallel(*args)
         else:
-            for i in ids:
-                _sense_range(*args, int(i), int(i) + 1)
+            _rows(*args, 0, self.n)
 
     # -- reporting --------------------------------------------------------------------------
     @property
     def truncated(self) -> np.ndarray:
-        return self.t_index >= self.task.episode_steps
+        return self.aux[:, A_TIDX] >= self.task.episode_steps
 
-    def theta_phi_deg(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.out[:, L.O_THETA].copy(), self.out[:, L.O_PHI].copy()
+    @property
+    def reward(self) -> np.ndarray:
+        return self.aux[:, A_REWARD]
 
-    def temperatures_C(self) -> np.ndarray:
-        return self.x[:, L.S_T:L.S_T + 3].copy()
+    @property
+    def err(self) -> np.ndarray:
+        return self.aux[:, A_ERR]
 
-    def currents_A(self) -> np.ndarray:
-        return self.out[:, L.O_CURRENT:L.O_CURRENT + 3].copy()
+    @property
+    def target(self) -> np.ndarray:
+        return self.aux[:, A_TARGET:A_TARGET + 2]
+
+    @property
+    def energy_used(self) -> np.ndarray:
+        return self.aux[:, A_USED]
+
+    @property
+    def energy_left(self) -> np.ndarray:
+        return self.aux[:, A_LEFT]

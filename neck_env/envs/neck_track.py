@@ -15,8 +15,8 @@ from ..params import NeckParams
 from ..physics import layout as L
 from ..sensors import SensorParams
 from ..targets import TargetSpec
-from .core import (MAX_CURRENT_A, NeckTrackCore, Randomization, TaskConfig, resolve_params,
-                   validate_action)
+from .core import (A_ERR, A_LEFT, A_TIDX, A_TPHI, A_TTHETA, A_USED, MAX_CURRENT_A,
+                   NeckTrackCore, Randomization, TaskConfig, resolve_params, validate_action)
 
 _DOC = """
     ## Description
@@ -130,6 +130,7 @@ class NeckTrackEnv(gym.Env):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
         self.render_mode = render_mode
         self._scale = self.task.supply_current_A if action_mode == "relay" else 1.0
+        self._steps = self.task.episode_steps
         self._renderer = None
         self._started = False
 
@@ -147,28 +148,30 @@ class NeckTrackEnv(gym.Env):
     def step(self, action):
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        cur = validate_action(action, self.task.action_mode, 1, single=True) * self._scale
-        self.core.step(cur)
+        cur = validate_action(action, self.task.action_mode, 1, single=True)
+        self.core.step(cur * self._scale if self._scale != 1.0 else cur)
         if self.render_mode == "human":
             self.render()
-        return (self.core.obs[0].copy(), float(self.core.reward[0]), False,
-                bool(self.core.truncated[0]), self._info())
+        info = self._info()
+        truncated = self.core.aux[0, A_TIDX] >= self._steps
+        return self.core.obs[0].copy(), -info["tracking_error_deg"], False, bool(truncated), info
 
     def _info(self) -> dict[str, Any]:
-        c, o = self.core, self.core.out[0]
-        tx, ty = c.target[0]
-        left = float(c.energy_left[0])
+        c = self.core
+        theta, phi = c.out[0, L.O_THETA:L.O_PHI + 1].tolist()
+        a = c.aux[0].tolist()
+        left = a[A_LEFT]
         return {
-            "theta_deg": float(o[L.O_THETA]),
-            "phi_deg": float(o[L.O_PHI]),
+            "theta_deg": theta,
+            "phi_deg": phi,
             "temperatures_C": c.x[0, L.S_T:L.S_T + 3].copy(),
-            "energy_J": float(c.energy_used[0]),
-            "currents_A": o[L.O_CURRENT:L.O_CURRENT + 3].copy(),
-            "tracking_error_deg": float(c.err[0]),
-            "target_theta_deg": float(np.hypot(tx, ty)),
-            "target_phi_deg": float(np.degrees(np.arctan2(ty, tx)) % 360.0),
+            "energy_J": a[A_USED],
+            "currents_A": c.out[0, L.O_CURRENT:L.O_CURRENT + 3].copy(),
+            "tracking_error_deg": a[A_ERR],
+            "target_theta_deg": a[A_TTHETA],
+            "target_phi_deg": a[A_TPHI],
             "energy_left_J": left,
-            "budget_exhausted": bool(left <= 0.0),
+            "budget_exhausted": left <= 0.0,
         }
 
     def render(self):
@@ -263,18 +266,28 @@ class NeckTrackVectorEnv(VectorEnv):
 
     def _info(self) -> dict[str, Any]:
         c = self.core
-        tx, ty = c.target[:, 0], c.target[:, 1]
+        # One fresh array holds every value; the info entries are views into it, so nothing a
+        # caller keeps aliases the env's buffers.
+        rep = np.empty((self.num_envs, 14))
+        rep[:, 0:2] = c.out[:, L.O_THETA:L.O_PHI + 1]
+        rep[:, 2:5] = c.x[:, L.S_T:L.S_T + 3]
+        rep[:, 5] = c.aux[:, A_USED]
+        rep[:, 6:9] = c.out[:, L.O_CURRENT:L.O_CURRENT + 3]
+        rep[:, 9] = c.aux[:, A_ERR]
+        rep[:, 10:12] = c.aux[:, A_TTHETA:A_TPHI + 1]
+        rep[:, 12] = c.aux[:, A_LEFT]
+        left = rep[:, 12]
         info = {
-            "theta_deg": c.out[:, L.O_THETA].copy(),
-            "phi_deg": c.out[:, L.O_PHI].copy(),
-            "temperatures_C": c.x[:, L.S_T:L.S_T + 3].copy(),
-            "energy_J": c.energy_used.copy(),
-            "currents_A": c.out[:, L.O_CURRENT:L.O_CURRENT + 3].copy(),
-            "tracking_error_deg": c.err.copy(),
-            "target_theta_deg": np.hypot(tx, ty),
-            "target_phi_deg": np.degrees(np.arctan2(ty, tx)) % 360.0,
-            "energy_left_J": c.energy_left.copy(),
-            "budget_exhausted": c.energy_left <= 0.0,
+            "theta_deg": rep[:, 0],
+            "phi_deg": rep[:, 1],
+            "temperatures_C": rep[:, 2:5],
+            "energy_J": rep[:, 5],
+            "currents_A": rep[:, 6:9],
+            "tracking_error_deg": rep[:, 9],
+            "target_theta_deg": rep[:, 10],
+            "target_phi_deg": rep[:, 11],
+            "energy_left_J": left,
+            "budget_exhausted": left <= 0.0,
         }
         for k in list(info):
             info["_" + k] = self._all

@@ -19,12 +19,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .compile import jit
 
 _SERIES_BELOW = 1e-2  # rad; series truncation error < theta^6 / 5040 there
 
 
-@njit(cache=True)
+@jit
 def theta_functions(theta):
     """(f1, f2, g1, g2, c2): (1-cos)/t^2, sin/t, f1'/t, f2'/t, (t-sin)/t^3."""
     if theta < _SERIES_BELOW:
@@ -38,7 +38,7 @@ def theta_functions(theta):
     return (1 - c) / t2, s / theta, s / t3 - 2 * (1 - c) / (t2 * t2), c / t2 - s / t3, (theta - s) / t3
 
 
-@njit(cache=True)
+@jit
 def kinematics(bx, by, length, tip, dtip, rot):
     """Fill tip p(l) (3,), dtip[i] = dp/dq_i (3, 3) and rot[i] = world angular velocity per
     unit q_i_dot (3, 3). Returns (f1, f2) for ``rotate_bend``."""
@@ -70,7 +70,7 @@ def kinematics(bx, by, length, tip, dtip, rot):
     return f1, f2
 
 
-@njit(cache=True)
+@jit
 def rotate_bend(bx, by, f1, f2, v, out):
     """out = Rot(omega) v (Rodrigues, omega = (-b_y, b_x, 0))."""
     wx, wy = -by, bx
@@ -97,7 +97,7 @@ def pose_from_angles(theta, phi, eps=0.0) -> np.ndarray:
     return np.stack([theta * np.cos(phi), theta * np.sin(phi), eps], axis=-1)
 
 
-@njit(cache=True)
+@jit
 def _kinematics_rows(q, length, tip, dtip, rot):
     for n in range(q.shape[0]):
         kinematics(q[n, 0], q[n, 1], length, tip[n], dtip[n], rot[n])
@@ -112,7 +112,7 @@ def kinematics_batch(q: np.ndarray, length_m: float) -> tuple[np.ndarray, np.nda
     return tip, dtip, rot
 
 
-@njit(cache=True)
+@jit
 def _head_rotation_rows(q, out):
     tip, dtip, rot = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
     col = np.empty(3)

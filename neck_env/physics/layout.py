@@ -55,7 +55,10 @@ CONV_GAIN = 55  # multiplier on h (1 = nominal)
 CONV_TCOEF = 56  # relative change of h per K of excess temperature, 1/K (0 = constant h)
 FATIGUE_RATE = 57  # loss of recoverable strain per unit of transformed fraction (0 = off)
 FATIGUE_MAX = 58  # cap on that loss (fraction of gamma_L)
-N_CONST = 59
+# --- constants: derived, for speed -----------------------------------------------------------
+COS_PSI = 59  # 59..61: cos of the muscle azimuths
+SIN_PSI = 62  # 62..64: sin of the muscle azimuths
+N_CONST = 65
 
 # --- state ----------------------------------------------------------------------------------
 S_T = 0  # 0..2: spring temperature per muscle, deg C

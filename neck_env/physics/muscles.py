@@ -16,10 +16,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .compile import jit
 
 from .backbone import rotate_bend
-from .layout import ANCHOR, FREE_LEN, HEAD_R, PSI
+from .layout import ANCHOR, COS_PSI, FREE_LEN, HEAD_R, SIN_PSI
 
 
 def anchor_geometry(azimuths_deg, head_radius_m: float, base_radius_m: float, pennation_deg: float,
@@ -41,15 +41,16 @@ def anchor_geometry(azimuths_deg, head_radius_m: float, base_radius_m: float, pe
     return anchors, free
 
 
-@njit(cache=True)
+@jit
 def spring_geometry(c, bx, by, eps, f1, f2, tip, offset, unit, ext):
     """Fill tendon offsets p_k(l) - p(l) (3, 3), unit vectors tendon -> anchor (3, 2, 3) and
     spring extensions (3, 2) for one rig."""
     local = np.empty(3)
+    ce, se = math.cos(eps), math.sin(eps)
     for k in range(3):
-        psi = c[PSI + k] + eps
-        local[0] = c[HEAD_R] * math.cos(psi)
-        local[1] = c[HEAD_R] * math.sin(psi)
+        cp, sp = c[COS_PSI + k], c[SIN_PSI + k]  # azimuth psi_k + twist eps
+        local[0] = c[HEAD_R] * (cp * ce - sp * se)
+        local[1] = c[HEAD_R] * (sp * ce + cp * se)
         local[2] = 0.0
         rotate_bend(bx, by, f1, f2, local, offset[k])
         for s in range(2):
@@ -64,7 +65,7 @@ def spring_geometry(c, bx, by, eps, f1, f2, tip, offset, unit, ext):
             ext[k, s] = length - c[FREE_LEN]
 
 
-@njit(cache=True)
+@jit
 def generalized_forces(forces, unit, offset, dtip, rot, q_force, f_muscle):
     """Generalized forces (3,) on q from spring tensions (3, 2); also tendon forces (3, 3)."""
     fx = fy = fz = 0.0

@@ -31,16 +31,18 @@ import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
+
+from .compile import jit
 
 from ..params import NeckParams
 from .backbone import bend_angles, kinematics
-from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_GAIN, CONV_TCOEF, COUPLING,
+from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_GAIN, CONV_TCOEF, COS_PSI, COUPLING,
                      DAMPING, FATIGUE_MAX, FATIGUE_RATE, FORCE_PER_SHEAR, FREE_LEN, FRICTION,
                      G_A, G_M, GAMMA_L, HA, HEAD_R, HEAT_CAP, K_BEND, K_TWIST, LATENT_J,
                      LATENT_K, LENGTH, LEVER_SQ, MF, MS, N_CONST, N_OUT, N_STATE, O_CONV,
                      O_CURRENT, O_ENERGY, O_FORCE, O_PHI, O_POWER, O_THETA, PAYLOAD_COM,
-                     PAYLOAD_MG, PSI, R_A, R_M, S_FATIGUE, S_HEAT, S_Q, S_SCALE, S_T, S_VISCO,
+                     PAYLOAD_MG, PSI, R_A, R_M, SIN_PSI, S_FATIGUE, S_HEAT, S_Q, S_SCALE, S_T, S_VISCO,
                      S_XI, SHEAR_PER_EXT, SUPPLY_V, THETA_SHEAR, VISCO_K, VISCO_TAU, WIRING_R)
 from .muscles import anchor_geometry, generalized_forces, spring_geometry
 from .sma import phase_thermal_step, resistance, spring_force, spring_rate
@@ -84,6 +86,8 @@ def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarr
         row[LEVER_SQ] = 0.5 * (mu.head_radius_m * math.cos(math.radians(mu.pennation_deg))) ** 2
         row[HEAD_R] = mu.head_radius_m
         row[PSI:PSI + 3] = np.deg2rad(mu.azimuths_deg)
+        row[COS_PSI:COS_PSI + 3] = np.cos(row[PSI:PSI + 3])
+        row[SIN_PSI:SIN_PSI + 3] = np.sin(row[PSI:PSI + 3])
         anchors, free = anchor_geometry(mu.azimuths_deg, mu.head_radius_m, mu.base_radius_m,
                                         mu.pennation_deg, bb.length_m,
                                         sp.recoverable_extension_m + sp.pretension_extension_m)
@@ -112,7 +116,7 @@ def initial_state(consts: np.ndarray, n_rigs: int | None = None) -> np.ndarray:
     return x
 
 
-@njit(cache=True)
+@jit
 def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit, ext, forces,
                  qf, fmus, amps, temps):
     """Advance one rig by n_sub substeps of dt; returns the energy budget left (J)."""
@@ -140,17 +144,20 @@ def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit
                 amps[k] *= s
         budget = max(budget - min(e_sub, budget), 0.0)
         k_springs = 0.0
+        hA = max(c[HA] * c[CONV_GAIN], 1e-9)
+        decay = math.exp(-dt * hA / c[HEAT_CAP])
         for k in range(3):
             coupling = 0.0
             for j in range(3):
                 coupling += temps[j] - temps[k]
-            hA = c[HA] * c[CONV_GAIN] * (1.0 + c[CONV_TCOEF] * (temps[k] - c[AMBIENT]))
-            hA = max(hA, 1e-9)
+            if c[CONV_TCOEF] != 0.0:
+                hA = max(c[HA] * c[CONV_GAIN] * (1.0 + c[CONV_TCOEF] * (temps[k] - c[AMBIENT])), 1e-9)
+                decay = math.exp(-dt * hA / c[HEAT_CAP])
             gamma_L = c[GAMMA_L] * (1.0 - x[S_FATIGUE + k])
             xi_old = x[S_XI + k]
             T, xi, heating, scale, joule, conv = phase_thermal_step(
                 c, temps[k], xi_old, x[S_HEAT + k] > 0.5, x[S_SCALE + k], amps[k],
-                0.5 * (ext[k, 0] + ext[k, 1]), dt, c[COUPLING] * coupling, hA, gamma_L)
+                0.5 * (ext[k, 0] + ext[k, 1]), dt, c[COUPLING] * coupling, hA, decay, gamma_L)
             x[S_T + k] = T
             x[S_XI + k] = xi
             x[S_HEAT + k] = 1.0 if heating else 0.0
@@ -181,9 +188,12 @@ def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit
             keep = 0.0 if mag <= c[FRICTION] else 1.0 - c[FRICTION] / mag
             qf[0] *= keep
             qf[1] *= keep
+        k_bend = c[K_BEND] + c[VISCO_K] + k_musc
+        k_twist = c[K_TWIST] + c[VISCO_K] + k_musc
+        gain_bend = (1.0 - math.exp(-dt * k_bend / c[DAMPING])) / k_bend
+        gain_twist = (1.0 - math.exp(-dt * k_twist / c[DAMPING])) / k_twist
         for i in range(3):
-            k_i = (c[K_BEND] if i < 2 else c[K_TWIST]) + c[VISCO_K] + k_musc
-            dq = (1.0 - math.exp(-dt * k_i / c[DAMPING])) * qf[i] / k_i
+            dq = (gain_bend if i < 2 else gain_twist) * qf[i]
             x[S_Q + i] += dq
             if c[VISCO_K] > 0.0:
                 # Maxwell branch of the standard linear solid, exact for constant q_dot.
@@ -201,7 +211,7 @@ def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit
     return budget
 
 
-@njit(cache=True)
+@jit
 def _advance_range(consts, state, cur, dt, n_sub, budget, out, start, stop):
     tip, dtip, rot = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
     offset, unit, ext = np.empty((3, 3)), np.empty((3, 2, 3)), np.empty((3, 2))
@@ -214,12 +224,12 @@ def _advance_range(consts, state, cur, dt, n_sub, budget, out, start, stop):
                                  rot, offset, unit, ext, forces, qf, fmus, amps, temps)
 
 
-@njit(cache=True)
+@jit
 def _step_serial(consts, state, cur, dt, n_sub, budget, out):
     _advance_range(consts, state, cur, dt, n_sub, budget, out, 0, state.shape[0])
 
 
-@njit(cache=True, parallel=True)
+@jit(parallel=True)
 def _step_parallel(consts, state, cur, dt, n_sub, budget, out):
     n = state.shape[0]
     n_chunks = (n + _CHUNK - 1) // _CHUNK

@@ -32,23 +32,23 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .compile import jit
 
 from .layout import (AF, AMBIENT, AS, C_A, C_M, FORCE_PER_SHEAR, G_A, G_M, GAMMA_L, HEAT_CAP,
                      LATENT_K, MF, MS, R_A, R_M, SHEAR_PER_EXT, THETA_SHEAR)
 
 _TINY = 1e-12
 NEWTON_ITERATIONS = 30  # cap of the safeguarded Newton; 2-4 iterations are typical
-NEWTON_TOL = 1e-13
+NEWTON_TOL = 1e-11  # on xi; far below anything observable
 
 
-@njit(cache=True)
+@jit
 def shear_modulus(c, xi):
     """G(xi) of eq. 2 (E interpolated in xi; nu folded into G_A, G_M)."""
     return c[G_A] + (c[G_M] - c[G_A]) * xi
 
 
-@njit(cache=True)
+@jit
 def shear_stress(c, ext, xi, T, gamma_L):
     """Wire shear stress (Pa) of the integrated eq. 1, tension only."""
     gamma = ext * c[SHEAR_PER_EXT]
@@ -56,25 +56,25 @@ def shear_stress(c, ext, xi, T, gamma_L):
     return tau if tau > 0.0 else 0.0
 
 
-@njit(cache=True)
+@jit
 def spring_force(c, ext, xi, T, gamma_L):
     """Axial force of one spring (N): pi d^3 / (8 D) * tau."""
     return c[FORCE_PER_SHEAR] * shear_stress(c, ext, xi, T, gamma_L)
 
 
-@njit(cache=True)
+@jit
 def spring_rate(c, xi):
     """Spring rate at fixed phase (N/m): d^4 G(xi) / (8 n D^3) (eq. 1, A)."""
     return shear_modulus(c, xi) * c[SHEAR_PER_EXT] * c[FORCE_PER_SHEAR]
 
 
-@njit(cache=True)
+@jit
 def resistance(c, xi):
     """Phase-dependent resistance of one spring (ohm), eq. 5."""
     return c[R_M] * xi + c[R_A] * (1.0 - xi)
 
 
-@njit(cache=True)
+@jit
 def _cos_band(x, start, width):
     """(1 - cos(pi u)) / 2 and its x-derivative, u = (x - start) / width clipped to [0, 1]."""
     u = (x - start) / width
@@ -82,23 +82,25 @@ def _cos_band(x, start, width):
         return 0.0, 0.0
     if u >= 1.0:
         return 1.0, 0.0
-    return 0.5 * (1.0 - math.cos(math.pi * u)), 0.5 * math.pi / width * math.sin(math.pi * u)
+    cu = math.cos(math.pi * u)
+    # sin(pi u) >= 0 on (0, 1): take it from cos (a sqrt is cheaper than a second sin/cos).
+    return 0.5 * (1.0 - cu), 0.5 * math.pi / width * math.sqrt(max(1.0 - cu * cu, 0.0))
 
 
-@njit(cache=True)
+@jit
 def reverse_shape(c, T, tau):
     """Heating branch g in [0, 1] (eq. 3 / xi_m) and dg/dx at x = T - tau / C_A."""
     v, dv = _cos_band(T - tau / c[C_A], c[AS], c[AF] - c[AS])
     return 1.0 - v, -dv
 
 
-@njit(cache=True)
+@jit
 def forward_shape(c, T, tau):
     """Cooling branch p in [0, 1] and dp/dx at x = T - tau / C_M; xi = 1 - (1 - xi_a) p (eq. 4)."""
     return _cos_band(T - tau / c[C_M], c[MF], c[MS] - c[MF])
 
 
-@njit(cache=True)
+@jit
 def _branch(c, xi, T_star, xi_old, ext, heating, scale, gamma_L):
     """h(xi) = xi - branch(x(xi)) and dh/dxi; temperature and stress follow xi."""
     T = T_star + c[LATENT_K] * (xi - xi_old)
@@ -116,7 +118,7 @@ def _branch(c, xi, T_star, xi_old, ext, heating, scale, gamma_L):
     return xi - (1.0 - scale * p), 1.0 + scale * dp * (c[LATENT_K] - dtau / c[C_M])
 
 
-@njit(cache=True)
+@jit
 def solve_phase(c, xi_old, T_star, ext, heating, scale, gamma_L):
     """xi consistent with its branch at the new temperature, stress and latent heat.
 
@@ -144,19 +146,21 @@ def solve_phase(c, xi_old, T_star, ext, heating, scale, gamma_L):
     return x
 
 
-@njit(cache=True)
-def phase_thermal_step(c, T, xi, heating, scale, current, ext, dt, extra_heat, hA, gamma_L):
+@jit
+def phase_thermal_step(c, T, xi, heating, scale, current, ext, dt, extra_heat, hA, decay, gamma_L):
     """Advance one spring by dt at fixed extension.
 
     Returns (T, xi, heating, scale, joule_J, convected_J): the new state and the heat of the
     step. ``extra_heat`` (W) comes from outside the model (effects, e.g. a neighbour muscle);
-    ``hA`` (W/K) is the convection coefficient in force (nominal or changed by an effect).
+    ``hA`` (W/K) is the convection coefficient in force (nominal or changed by an effect) and
+    ``decay = exp(-dt hA / (m c_p))`` its factor over the step (the caller shares it between
+    springs with the same hA).
     """
     joule_W = current * current * resistance(c, xi)
     power = joule_W + extra_heat
     mc = c[HEAT_CAP]
     T_eq = c[AMBIENT] + power / hA
-    T_star = T_eq + (T - T_eq) * math.exp(-dt * hA / mc)
+    T_star = T_eq + (T - T_eq) * decay
     convected = power * dt - mc * (T_star - T)  # exact for the step's constant power
     if T_star > T:
         heat_new = True
@@ -180,7 +184,7 @@ def phase_thermal_step(c, T, xi, heating, scale, current, ext, dt, extra_heat, h
 
 # --- batched conveniences (tests, plots): loops run compiled -------------------------------
 
-@njit(cache=True)
+@jit
 def _map3(fn_id, consts, a, b, cc):
     out = np.empty(a.shape)
     fa, fb, fc, fo = a.ravel(), b.ravel(), cc.ravel(), out.ravel()
