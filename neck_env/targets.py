@@ -26,9 +26,9 @@ class TargetSpec:
     theta_max_deg: float = 25.0  # reachable in every direction by the calibrated neck
     theta_min_deg: float = 5.0  # a non-upright waypoint tilts at least this much
     upright_probability: float = 0.2  # chance that a waypoint is upright (theta* = 0)
-    hold_s: tuple[float, float] = (4.0, 12.0)  # segment duration range (ramp + hold)
+    hold_s: tuple[float, float] = (8.0, 20.0)  # segment duration (ramp + hold): SMA cools in ~20 s
     step_probability: float = 0.5  # chance that a segment is a step rather than a ramp
-    ramp_s: tuple[float, float] = (1.5, 4.0)
+    ramp_s: tuple[float, float] = (2.0, 6.0)
     first_hold_s: float = 2.0  # the target stays upright for this long at the start
 
     def __post_init__(self) -> None:
