@@ -129,6 +129,11 @@ def main(argv: list[str] | None = None) -> int:
     algo_kwargs = {k: v for k, v in cfg.items() if k not in RUN_KEYS}
     if isinstance(algo_kwargs.get("policy_kwargs"), str):
         algo_kwargs["policy_kwargs"] = eval(algo_kwargs["policy_kwargs"], {"dict": dict})  # zoo style
+    for key in ("learning_rate", "clip_range"):  # zoo style "lin_3e-4": linear decay to 0
+        value = algo_kwargs.get(key)
+        if isinstance(value, str) and value.startswith("lin_"):
+            start = float(value[4:])
+            algo_kwargs[key] = lambda progress_remaining, start=start: progress_remaining * start
 
     out = args.out or Path("runs") / f"{args.algo}_seed{args.seed}"
     out.mkdir(parents=True, exist_ok=True)

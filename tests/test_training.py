@@ -1,0 +1,88 @@
+"""train.py and the SB3 adapter: a short run starts, saves, reloads and predicts."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.env_checker import check_env
+from stable_baselines3.common.vec_env import VecEnv
+
+import neck_env  # noqa: F401
+from agents.policy import DeployedPolicy
+from agents.sb3_env import NeckTrackSB3VecEnv, unit_to_current
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_sb3_vecenv_autoresets_with_terminal_observation():
+    env = NeckTrackSB3VecEnv(3, seed=4, episode_s=0.5)
+    assert isinstance(env, VecEnv)
+    obs = env.reset()
+    assert obs.shape == (3, 8)
+    for t in range(10):
+        obs, rew, done, infos = env.step(np.full((3, 3), 5.0, dtype=np.float32))
+        assert done.all() == (t == 9)
+    assert all(info["TimeLimit.truncated"] for info in infos)
+    assert all(info["terminal_observation"].shape == (8,) for info in infos)
+    assert obs[0, 7] == 1.0  # the returned observation is the reset one: full budget again
+    assert infos[0]["terminal_observation"][7] < 1.0
+
+
+def test_unit_actions_map_onto_the_current_range():
+    np.testing.assert_allclose(unit_to_current(np.array([-1.0, 0.0, 1.0, 2.0])), [0.0, 4.0, 8.0, 8.0])
+    env = NeckTrackSB3VecEnv(2, seed=0, unit_actions=True)
+    assert env.action_space.low.min() == -1.0 and env.action_space.high.max() == 1.0
+    env.reset()
+    _, _, _, _ = env.step(np.ones((2, 3), dtype=np.float32))
+    np.testing.assert_allclose(env.venv.core.out[:, 8:11], 8.0)  # O_CURRENT: 8 A flowed
+
+
+def test_single_env_passes_sb3_checker_in_relay_mode():
+    check_env(gym.make("NeckTrack-v0", action_mode="relay").unwrapped)
+
+
+@pytest.mark.slow
+def test_short_training_run_saves_and_reloads(tmp_path):
+    out = tmp_path / "run"
+    ship = tmp_path / "shipped" / "policy"
+    cmd = [sys.executable, str(ROOT / "train.py"), "--algo", "ppo", "--n-timesteps", "4096",
+           "--n-envs", "8", "--out", str(out), "--eval-freq", "2048", "--eval-episodes", "1",
+           "--save-freq", "2048", "--no-progress-bar", "--no-tensorboard", "--ship", str(ship),
+           "--hyperparams", "n_steps=256", "batch_size=512", "--env-kwargs", "episode_s=5.0"]
+    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    for name in ("model.zip", "best_model.zip", "vecnormalize.pkl", "config.yml", "policy.zip",
+                 "policy.json", "evaluations.npz"):
+        assert (out / name).exists(), name
+    assert list((out / "checkpoints").glob("model_*_steps.zip"))
+    meta = json.loads(ship.with_suffix(".json").read_text())
+    assert meta["algo"] == "PPO" and meta["frame_stack"] == 2 and meta["unit_actions"] is True
+    assert len(meta["obs_norm"]["mean"]) == 8
+    policy = DeployedPolicy.load(ship.with_suffix(".zip"))
+    env = gym.make("NeckTrack-v0", **policy.env_kwargs)
+    obs, _ = env.reset(seed=0)
+    policy.reset()
+    for _ in range(20):
+        action = policy.act(obs)
+        assert env.action_space.contains(np.asarray(action, dtype=np.float32))
+        obs, *_ = env.step(action)
+
+
+def test_train_help_explains_every_flag():
+    res = subprocess.run([sys.executable, str(ROOT / "train.py"), "--help"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0
+    for flag in ("--algo", "--config", "--seed", "--n-timesteps", "--n-envs", "--env-kwargs",
+                 "--hyperparams", "--out", "--eval-freq", "--save-freq", "--tensorboard",
+                 "--progress-bar", "--ship"):
+        assert flag in res.stdout
+
+
+def test_deployed_policy_missing_json_is_a_clear_error(tmp_path):
+    (tmp_path / "p.zip").write_bytes(b"")
+    with pytest.raises(FileNotFoundError, match="p.json"):
+        DeployedPolicy.load(tmp_path / "p.zip")
