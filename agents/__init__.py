@@ -1,0 +1,1 @@
+"""Controllers, SB3 training support and the benchmark for NeckTrack-v0."""
