@@ -82,7 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write TensorBoard logs to <out>/tb (default: on)")
     ap.add_argument("--progress-bar", action=argparse.BooleanOptionalAction, default=True,
                     help="show a progress bar (default: on)")
-    ap.add_argument("--threads", type=int, default=2, help="torch CPU threads (default: 2)")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="torch CPU threads (default: 1: small MLPs gain nothing from more, and on "
+                         "a busy 2-core machine spinning OpenMP threads slowed PPO 30-fold)")
     ap.add_argument("--ship", type=Path, default=None,
                     help="also export the deployable policy to this path (.zip + .json)")
     ap.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (0, 1, 2)")

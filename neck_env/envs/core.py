@@ -22,7 +22,8 @@ from .. import effects as fx
 from ..observation import FILTER_TAU_S, OBS_DIM, fill_observation, fuse_tilt, tilt_from_accel
 from ..params import NeckParams, default_params
 from ..physics import layout as L
-from ..physics.plant import PARALLEL_FROM, _advance_rig, constants_from_params, initial_state
+from ..physics.plant import (PARALLEL_FROM, _advance_rig, constants_from_params, initial_state,
+                             refresh_derived)
 from ..sensors import SensorParams, imu_reading, next_normal
 from ..targets import TargetSpec, sample_targets, target_at, tracking_error_deg
 
@@ -311,6 +312,7 @@ class NeckTrackCore:
                 eff[name] = fx.EFFECTS[name].sample(g)
             self.episode_effects[i] = eff
             self.consts[i] = fx.apply_to_constants(row[None], eff)[0]
+            refresh_derived(self.consts[i:i + 1])
             self.mount[i] = fx.imu_mount(eff)
             t0, ramp, way, nseg = sample_targets(spec, self.task.episode_s, g, self.targets.shape[1])
             self.targets[i, :, 0], self.targets[i, :, 1], self.targets[i, :, 2:4] = t0, ramp, way

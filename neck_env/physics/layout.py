@@ -58,7 +58,11 @@ FATIGUE_MAX = 58  # cap on that loss (fraction of gamma_L)
 # --- constants: derived, for speed -----------------------------------------------------------
 COS_PSI = 59  # 59..61: cos of the muscle azimuths
 SIN_PSI = 62  # 62..64: sin of the muscle azimuths
-N_CONST = 65
+INV_C_A = 65  # 1 / C_A, K/Pa (multiplications are cheaper than divisions in the hot loop)
+INV_C_M = 66  # 1 / C_M
+INV_BAND_A = 67  # 1 / (A_f - A_s), 1/K
+INV_BAND_M = 68  # 1 / (M_s - M_f)
+N_CONST = 69
 
 # --- state ----------------------------------------------------------------------------------
 S_T = 0  # 0..2: spring temperature per muscle, deg C

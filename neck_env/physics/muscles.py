@@ -59,9 +59,10 @@ def spring_geometry(c, bx, by, eps, f1, f2, tip, offset, unit, ext):
             v1 = c[a + 1] - tip[1] - offset[k, 1]
             v2 = c[a + 2] - tip[2] - offset[k, 2]
             length = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-            unit[k, s, 0] = v0 / length
-            unit[k, s, 1] = v1 / length
-            unit[k, s, 2] = v2 / length
+            inv = 1.0 / length
+            unit[k, s, 0] = v0 * inv
+            unit[k, s, 1] = v1 * inv
+            unit[k, s, 2] = v2 * inv
             ext[k, s] = length - c[FREE_LEN]
 
 

@@ -38,6 +38,7 @@ from .compile import jit
 from ..params import NeckParams
 from .backbone import bend_angles, kinematics
 from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_GAIN, CONV_TCOEF, COS_PSI, COUPLING,
+                     INV_BAND_A, INV_BAND_M, INV_C_A, INV_C_M,
                      DAMPING, FATIGUE_MAX, FATIGUE_RATE, FORCE_PER_SHEAR, FREE_LEN, FRICTION,
                      G_A, G_M, GAMMA_L, HA, HEAD_R, HEAT_CAP, K_BEND, K_TWIST, LATENT_J,
                      LATENT_K, LENGTH, LEVER_SQ, MF, MS, N_CONST, N_OUT, N_STATE, O_CONV,
@@ -86,8 +87,6 @@ def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarr
         row[LEVER_SQ] = 0.5 * (mu.head_radius_m * math.cos(math.radians(mu.pennation_deg))) ** 2
         row[HEAD_R] = mu.head_radius_m
         row[PSI:PSI + 3] = np.deg2rad(mu.azimuths_deg)
-        row[COS_PSI:COS_PSI + 3] = np.cos(row[PSI:PSI + 3])
-        row[SIN_PSI:SIN_PSI + 3] = np.sin(row[PSI:PSI + 3])
         anchors, free = anchor_geometry(mu.azimuths_deg, mu.head_radius_m, mu.base_radius_m,
                                         mu.pennation_deg, bb.length_m,
                                         sp.recoverable_extension_m + sp.pretension_extension_m)
@@ -102,7 +101,18 @@ def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarr
         row[COUPLING] = 0.0
         row[CONV_GAIN], row[CONV_TCOEF] = 1.0, 0.0
         row[FATIGUE_RATE], row[FATIGUE_MAX] = 0.0, 0.0
+    refresh_derived(out)
     return out
+
+
+def refresh_derived(consts: np.ndarray) -> None:
+    """Recompute the derived columns after base columns changed (randomization, fitting)."""
+    consts[:, INV_C_A] = 1.0 / consts[:, C_A]
+    consts[:, INV_C_M] = 1.0 / consts[:, C_M]
+    consts[:, INV_BAND_A] = 1.0 / (consts[:, AF] - consts[:, AS])
+    consts[:, INV_BAND_M] = 1.0 / (consts[:, MS] - consts[:, MF])
+    consts[:, COS_PSI:COS_PSI + 3] = np.cos(consts[:, PSI:PSI + 3])
+    consts[:, SIN_PSI:SIN_PSI + 3] = np.sin(consts[:, PSI:PSI + 3])
 
 
 def initial_state(consts: np.ndarray, n_rigs: int | None = None) -> np.ndarray:

@@ -34,8 +34,9 @@ import math
 import numpy as np
 from .compile import jit
 
-from .layout import (AF, AMBIENT, AS, C_A, C_M, FORCE_PER_SHEAR, G_A, G_M, GAMMA_L, HEAT_CAP,
-                     LATENT_K, MF, MS, R_A, R_M, SHEAR_PER_EXT, THETA_SHEAR)
+from .layout import (AMBIENT, AS, FORCE_PER_SHEAR, G_A, G_M, GAMMA_L, HEAT_CAP, INV_BAND_A,
+                     INV_BAND_M, INV_C_A, INV_C_M, LATENT_K, MF, R_A, R_M, SHEAR_PER_EXT,
+                     THETA_SHEAR)
 
 _TINY = 1e-12
 NEWTON_ITERATIONS = 30  # cap of the safeguarded Newton; 2-4 iterations are typical
@@ -75,29 +76,29 @@ def resistance(c, xi):
 
 
 @jit
-def _cos_band(x, start, width):
+def _cos_band(x, start, inv_width):
     """(1 - cos(pi u)) / 2 and its x-derivative, u = (x - start) / width clipped to [0, 1]."""
-    u = (x - start) / width
+    u = (x - start) * inv_width
     if u <= 0.0:
         return 0.0, 0.0
     if u >= 1.0:
         return 1.0, 0.0
     cu = math.cos(math.pi * u)
     # sin(pi u) >= 0 on (0, 1): take it from cos (a sqrt is cheaper than a second sin/cos).
-    return 0.5 * (1.0 - cu), 0.5 * math.pi / width * math.sqrt(max(1.0 - cu * cu, 0.0))
+    return 0.5 * (1.0 - cu), 0.5 * math.pi * inv_width * math.sqrt(max(1.0 - cu * cu, 0.0))
 
 
 @jit
 def reverse_shape(c, T, tau):
     """Heating branch g in [0, 1] (eq. 3 / xi_m) and dg/dx at x = T - tau / C_A."""
-    v, dv = _cos_band(T - tau / c[C_A], c[AS], c[AF] - c[AS])
+    v, dv = _cos_band(T - tau * c[INV_C_A], c[AS], c[INV_BAND_A])
     return 1.0 - v, -dv
 
 
 @jit
 def forward_shape(c, T, tau):
     """Cooling branch p in [0, 1] and dp/dx at x = T - tau / C_M; xi = 1 - (1 - xi_a) p (eq. 4)."""
-    return _cos_band(T - tau / c[C_M], c[MF], c[MS] - c[MF])
+    return _cos_band(T - tau * c[INV_C_M], c[MF], c[INV_BAND_M])
 
 
 @jit
@@ -113,9 +114,9 @@ def _branch(c, xi, T_star, xi_old, ext, heating, scale, gamma_L):
         dtau = 0.0
     if heating:
         g, dg = reverse_shape(c, T, tau)
-        return xi - scale * g, 1.0 - scale * dg * (c[LATENT_K] - dtau / c[C_A])
+        return xi - scale * g, 1.0 - scale * dg * (c[LATENT_K] - dtau * c[INV_C_A])
     p, dp = forward_shape(c, T, tau)
-    return xi - (1.0 - scale * p), 1.0 + scale * dp * (c[LATENT_K] - dtau / c[C_M])
+    return xi - (1.0 - scale * p), 1.0 + scale * dp * (c[LATENT_K] - dtau * c[INV_C_M])
 
 
 @jit
