@@ -80,7 +80,7 @@ class TaskConfig:
     """Everything that defines a NeckTrack task instance (shared by the sim and rig envs)."""
 
     action_mode: str = "current"
-    dt: float = DEFAULT_DT_S
+    dt: float = DEFAULT_DT_S  # control period, s; one plant step per control step
     episode_s: float = DEFAULT_EPISODE_S
     energy_budget_J: float = DEFAULT_BUDGET_J
     supply_current_A: float = DEFAULT_SUPPLY_A

@@ -15,8 +15,9 @@ from ..params import NeckParams
 from ..physics import layout as L
 from ..sensors import SensorParams
 from ..targets import TargetSpec
-from .core import (A_ERR, A_LEFT, A_TIDX, A_TPHI, A_TTHETA, A_USED, MAX_CURRENT_A,
-                   NeckTrackCore, Randomization, TaskConfig, resolve_params, validate_action)
+from .core import (A_ERR, A_LEFT, A_TIDX, A_TPHI, A_TTHETA, A_USED, DEFAULT_BUDGET_J,
+                   DEFAULT_DT_S, DEFAULT_EPISODE_S, DEFAULT_SUPPLY_A, MAX_CURRENT_A, NeckTrackCore,
+                   Randomization, TaskConfig, resolve_params, validate_action)
 
 _DOC = """
     ## Description
@@ -25,8 +26,8 @@ _DOC = """
     azimuths 180, 60 and 300 deg. Heating a muscle's springs (Joule heating through relays from
     a DC supply) makes them contract once they pass the stress-shifted austenite start
     temperature; the head then bends toward that muscle. Cooling takes tens of seconds. The
-    task: follow a moving target pose (waypoints reached by steps or ramps, held for 4-12 s,
-    tilt up to 25 deg) for 60 s with a fixed electrical energy budget.
+    task: follow a moving target pose (waypoints reached by steps or ramps over 2-6 s, each
+    segment lasting 8-20 s, tilt up to 25 deg) for 60 s with a fixed electrical energy budget.
 
     ## Action space
 
@@ -115,8 +116,9 @@ class NeckTrackEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 20}
 
-    def __init__(self, action_mode: str = "current", dt: float = 0.05, episode_s: float = 60.0,
-                 energy_budget_J: float = 1500.0, supply_current_A: float = 7.0,
+    def __init__(self, action_mode: str = "current", dt: float = DEFAULT_DT_S,
+                 episode_s: float = DEFAULT_EPISODE_S, energy_budget_J: float = DEFAULT_BUDGET_J,
+                 supply_current_A: float = DEFAULT_SUPPLY_A,
                  params: NeckParams | str | None = None, sensors: SensorParams | None = None,
                  targets: TargetSpec | None = None, randomize: bool | Randomization = False,
                  effects=None, render_mode: str | None = None):
@@ -198,9 +200,9 @@ class NeckTrackVectorEnv(VectorEnv):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20,
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, num_envs: int = 1, action_mode: str = "current", dt: float = 0.05,
-                 episode_s: float = 60.0, energy_budget_J: float = 1500.0,
-                 supply_current_A: float = 7.0, params: NeckParams | str | None = None,
+    def __init__(self, num_envs: int = 1, action_mode: str = "current", dt: float = DEFAULT_DT_S,
+                 episode_s: float = DEFAULT_EPISODE_S, energy_budget_J: float = DEFAULT_BUDGET_J,
+                 supply_current_A: float = DEFAULT_SUPPLY_A, params: NeckParams | str | None = None,
                  sensors: SensorParams | None = None, targets: TargetSpec | None = None,
                  randomize: bool | Randomization = False, effects=None,
                  render_mode: str | None = None):
