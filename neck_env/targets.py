@@ -23,7 +23,11 @@ from .physics.compile import jit
 class TargetSpec:
     """Distribution of target trajectories (angles in degrees, times in seconds)."""
 
-    theta_max_deg: float = 25.0  # reachable in every direction by the calibrated neck
+    # Reachable workspace under the 160 C over-temperature cut: 31 deg toward a muscle, ~21 deg
+    # midway between two (two springs share the bend). The bound interpolates smoothly between
+    # the two directions with some margin: theta_max(phi) = mid + (along - mid)(1 + cos 3(phi - 180)) / 2.
+    theta_max_deg: float = 25.0  # toward a muscle (phi = 180, 60, 300 deg)
+    theta_max_between_deg: float = 18.0  # midway between two muscles (phi = 0, 120, 240 deg)
     theta_min_deg: float = 5.0  # a non-upright waypoint tilts at least this much
     upright_probability: float = 0.2  # chance that a waypoint is upright (theta* = 0)
     hold_s: tuple[float, float] = (8.0, 20.0)  # segment duration (ramp + hold): SMA cools in ~20 s
@@ -32,9 +36,11 @@ class TargetSpec:
     first_hold_s: float = 2.0  # the target stays upright for this long at the start
 
     def __post_init__(self) -> None:
-        if not (0 < self.theta_min_deg <= self.theta_max_deg <= 60):
-            raise ValueError(f"targets: need 0 < theta_min_deg <= theta_max_deg <= 60, got "
-                             f"{self.theta_min_deg}, {self.theta_max_deg}")
+        if not (0 < self.theta_min_deg <= min(self.theta_max_deg, self.theta_max_between_deg)
+                and max(self.theta_max_deg, self.theta_max_between_deg) <= 60):
+            raise ValueError("targets: need 0 < theta_min_deg <= theta_max_deg, "
+                             "theta_max_between_deg <= 60, got "
+                             f"{self.theta_min_deg}, {self.theta_max_deg}, {self.theta_max_between_deg}")
         for name in ("upright_probability", "step_probability"):
             v = getattr(self, name)
             if not 0 <= v <= 1:
@@ -47,6 +53,11 @@ class TargetSpec:
             raise ValueError("targets: ramp_s must not exceed the shortest hold_s")
         if self.first_hold_s < 0:
             raise ValueError("targets.first_hold_s must be >= 0")
+
+    def theta_max_at(self, phi_rad: float) -> float:
+        """Largest target tilt (deg) in direction phi (rad)."""
+        w = 0.5 * (1.0 + math.cos(3.0 * (phi_rad - math.pi)))
+        return self.theta_max_between_deg + (self.theta_max_deg - self.theta_max_between_deg) * w
 
     def max_segments(self, episode_s: float) -> int:
         return int(math.ceil(max(episode_s - self.first_hold_s, 0.0) / self.hold_s[0])) + 2
@@ -61,11 +72,9 @@ def sample_targets(spec: TargetSpec, episode_s: float, rng: np.random.Generator,
     t0[0] = 0.0  # upright hold first
     t, n = spec.first_hold_s, 1
     while t < episode_s and n < max_segments:
-        if rng.random() < spec.upright_probability:
-            theta = 0.0
-        else:
-            theta = rng.uniform(spec.theta_min_deg, spec.theta_max_deg)
+        upright = rng.random() < spec.upright_probability
         phi = rng.uniform(0.0, 2 * math.pi)
+        theta = 0.0 if upright else rng.uniform(spec.theta_min_deg, spec.theta_max_at(phi))
         t0[n] = t
         ramp[n] = 0.0 if rng.random() < spec.step_probability else rng.uniform(*spec.ramp_s)
         way[n] = theta * math.cos(phi), theta * math.sin(phi)

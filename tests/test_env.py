@@ -192,3 +192,32 @@ def test_truncation_after_episode_s():
         _, _, term, trunc, _ = env.step(np.zeros(3, dtype=np.float32))
         assert not term
         assert trunc == (t == 19)
+
+
+def test_over_temperature_cut_holds_springs_near_cutoff():
+    env = gym.make("NeckTrack-v0", energy_budget_J=float("inf"), cutoff_C=120.0)
+    env.reset(seed=0)
+    cut_seen = False
+    for _ in range(600):
+        _, _, _, _, info = env.step(np.array([8.0, 0.0, 0.0], dtype=np.float32))
+        # One 50 ms step at 8 A heats a spring by < 2.5 K, so it never passes the cut by more.
+        assert info["temperatures_C"][0] < 120.0 + 2.5
+        if info["currents_A"][0] == 0.0:
+            cut_seen = True
+            assert info["temperatures_C"][0] >= 120.0 - 2.5
+    assert cut_seen
+
+
+def test_targets_stay_inside_the_reachable_workspace():
+    from neck_env.targets import TargetSpec, sample_targets
+
+    spec = TargetSpec()
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        _, _, way, n = sample_targets(spec, 60.0, rng, spec.max_segments(60.0))
+        theta = np.hypot(way[:n, 0], way[:n, 1])
+        phi = np.arctan2(way[:n, 1], way[:n, 0])
+        bound = np.array([spec.theta_max_at(p) for p in phi])
+        assert np.all(theta <= bound + 1e-9)
+    assert spec.theta_max_at(math.pi) == pytest.approx(25.0)  # toward muscle 1
+    assert spec.theta_max_at(0.0) == pytest.approx(18.0)  # between muscles 2 and 3

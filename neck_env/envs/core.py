@@ -33,6 +33,9 @@ DEFAULT_DT_S = 0.05
 DEFAULT_EPISODE_S = 60.0
 DEFAULT_SUPPLY_A = 7.0  # calibrated Table 1: a 5 s pulse at 7 A reaches ~24 deg (task range)
 DEFAULT_BUDGET_J = 1500.0  # see README "Energy budget"
+# Over-temperature cut, as the rig firmware does with thermistors fitted: overheated Flexinol
+# loses its trained shape. 160 C is above the ~90-150 C a controller needs for the target range.
+DEFAULT_CUTOFF_C = 160.0
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,7 @@ class TaskConfig:
     episode_s: float = DEFAULT_EPISODE_S
     energy_budget_J: float = DEFAULT_BUDGET_J
     supply_current_A: float = DEFAULT_SUPPLY_A
+    cutoff_C: float = DEFAULT_CUTOFF_C  # a muscle's current is cut while its spring is hotter
     targets: TargetSpec = field(default_factory=TargetSpec)
 
     def __post_init__(self) -> None:
@@ -96,6 +100,8 @@ class TaskConfig:
         b = self.energy_budget_J
         if not (isinstance(b, (int, float)) and b > 0 and not math.isnan(b)):
             raise ValueError(f"energy_budget_J = {b!r}: must be > 0 (float('inf') for none)")
+        if not (isinstance(self.cutoff_C, (int, float)) and self.cutoff_C > 40):
+            raise ValueError(f"cutoff_C = {self.cutoff_C!r}: must be > 40 C (float('inf') for none)")
         if not (isinstance(self.supply_current_A, (int, float))
                 and 0 < self.supply_current_A <= MAX_CURRENT_A):
             raise ValueError(f"supply_current_A = {self.supply_current_A!r}: must lie in "
@@ -277,6 +283,7 @@ class NeckTrackCore:
                               (randomize if isinstance(randomize, Randomization) else None))
         self.fixed_effects, self.sampled_effects = resolve_effects(effects)
         self.base_consts = constants_from_params(params)
+        self.base_consts[:, L.CUTOFF_C] = task.cutoff_C
         m = task.targets.max_segments(task.episode_s)
         self.consts = np.repeat(self.base_consts, n, axis=0)
         self.x = initial_state(self.base_consts, n)

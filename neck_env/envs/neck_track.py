@@ -16,7 +16,7 @@ from ..physics import layout as L
 from ..sensors import SensorParams
 from ..targets import TargetSpec
 from .core import (A_ERR, A_LEFT, A_TIDX, A_TPHI, A_TTHETA, A_USED, DEFAULT_BUDGET_J,
-                   DEFAULT_DT_S, DEFAULT_EPISODE_S, DEFAULT_SUPPLY_A, MAX_CURRENT_A, NeckTrackCore,
+                   DEFAULT_CUTOFF_C, DEFAULT_DT_S, DEFAULT_EPISODE_S, DEFAULT_SUPPLY_A, MAX_CURRENT_A, NeckTrackCore,
                    Randomization, TaskConfig, resolve_params, validate_action)
 
 _DOC = """
@@ -27,7 +27,9 @@ _DOC = """
     a DC supply) makes them contract once they pass the stress-shifted austenite start
     temperature; the head then bends toward that muscle. Cooling takes tens of seconds. The
     task: follow a moving target pose (waypoints reached by steps or ramps over 2-6 s, each
-    segment lasting 8-20 s, tilt up to 25 deg) for 60 s with a fixed electrical energy budget.
+    segment lasting 8-20 s, tilt up to 25 deg toward a muscle and 18 deg between two -- the
+    workspace reachable under the over-temperature cut) for 60 s with a fixed electrical
+    energy budget.
 
     ## Action space
 
@@ -76,7 +78,9 @@ _DOC = """
     | no terminal state                        | `terminated` always False |
 
     When the energy budget is spent, actuation is cut (currents become 0) and the episode goes
-    on: the head relaxes as the springs cool.
+    on: the head relaxes as the springs cool. A muscle whose spring is at or above `cutoff_C`
+    (160 C) gets no current until it cools below it (the rig firmware's over-temperature cut;
+    overheated Flexinol loses its memory).
 
     ## Info
 
@@ -88,17 +92,18 @@ _DOC = """
     ## Arguments
 
     `action_mode`, `dt` (control period, 0.05 s), `episode_s` (60), `energy_budget_J` (1500;
-    `float("inf")` for none), `supply_current_A` (7 A), `params` (`NeckParams` or JSON path;
+    `float("inf")` for none), `supply_current_A` (7 A), `cutoff_C` (160), `params`
+    (`NeckParams` or JSON path;
     default: the calibrated defaults), `sensors` (`SensorParams`), `targets` (`TargetSpec`),
     `randomize`, `effects`, `render_mode` (`"rgb_array"` or `"human"`).
 """
 
 
-def _build(num_envs, action_mode, dt, episode_s, energy_budget_J, supply_current_A, params,
-           sensors, targets, randomize, effects) -> NeckTrackCore:
+def _build(num_envs, action_mode, dt, episode_s, energy_budget_J, supply_current_A, cutoff_C,
+           params, sensors, targets, randomize, effects) -> NeckTrackCore:
     task = TaskConfig(action_mode=action_mode, dt=dt, episode_s=episode_s,
                       energy_budget_J=energy_budget_J, supply_current_A=supply_current_A,
-                      targets=targets if targets is not None else TargetSpec())
+                      cutoff_C=cutoff_C, targets=targets if targets is not None else TargetSpec())
     if sensors is not None and not isinstance(sensors, SensorParams):
         raise ValueError(f"sensors must be a SensorParams, got {type(sensors).__name__}")
     return NeckTrackCore(num_envs, task, resolve_params(params), sensors or SensorParams(),
@@ -118,12 +123,12 @@ class NeckTrackEnv(gym.Env):
 
     def __init__(self, action_mode: str = "current", dt: float = DEFAULT_DT_S,
                  episode_s: float = DEFAULT_EPISODE_S, energy_budget_J: float = DEFAULT_BUDGET_J,
-                 supply_current_A: float = DEFAULT_SUPPLY_A,
+                 supply_current_A: float = DEFAULT_SUPPLY_A, cutoff_C: float = DEFAULT_CUTOFF_C,
                  params: NeckParams | str | None = None, sensors: SensorParams | None = None,
                  targets: TargetSpec | None = None, randomize: bool | Randomization = False,
                  effects=None, render_mode: str | None = None):
         self.core = _build(1, action_mode, dt, episode_s, energy_budget_J, supply_current_A,
-                           params, sensors, targets, randomize, effects)
+                           cutoff_C, params, sensors, targets, randomize, effects)
         self.task = self.core.task
         self.dt = self.task.dt
         self.action_space = _action_space(action_mode)
@@ -202,12 +207,13 @@ class NeckTrackVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, action_mode: str = "current", dt: float = DEFAULT_DT_S,
                  episode_s: float = DEFAULT_EPISODE_S, energy_budget_J: float = DEFAULT_BUDGET_J,
-                 supply_current_A: float = DEFAULT_SUPPLY_A, params: NeckParams | str | None = None,
+                 supply_current_A: float = DEFAULT_SUPPLY_A, cutoff_C: float = DEFAULT_CUTOFF_C,
+                 params: NeckParams | str | None = None,
                  sensors: SensorParams | None = None, targets: TargetSpec | None = None,
                  randomize: bool | Randomization = False, effects=None,
                  render_mode: str | None = None):
         self.core = _build(num_envs, action_mode, dt, episode_s, energy_budget_J,
-                           supply_current_A, params, sensors, targets, randomize, effects)
+                           supply_current_A, cutoff_C, params, sensors, targets, randomize, effects)
         self.task = self.core.task
         self.num_envs = self.core.n
         self.dt = self.task.dt

@@ -62,7 +62,9 @@ INV_C_A = 65  # 1 / C_A, K/Pa (multiplications are cheaper than divisions in the
 INV_C_M = 66  # 1 / C_M
 INV_BAND_A = 67  # 1 / (A_f - A_s), 1/K
 INV_BAND_M = 68  # 1 / (M_s - M_f)
-N_CONST = 69
+# --- constants: safety --------------------------------------------------------------------------
+CUTOFF_C = 69  # spring temperature at which a muscle's current is cut (inf = no cut), deg C
+N_CONST = 70
 
 # --- state ----------------------------------------------------------------------------------
 S_T = 0  # 0..2: spring temperature per muscle, deg C

@@ -38,6 +38,7 @@ from .compile import jit
 from ..params import NeckParams
 from .backbone import bend_angles, kinematics
 from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_GAIN, CONV_TCOEF, COS_PSI, COUPLING,
+                     CUTOFF_C,
                      INV_BAND_A, INV_BAND_M, INV_C_A, INV_C_M,
                      DAMPING, FATIGUE_MAX, FATIGUE_RATE, FORCE_PER_SHEAR, FREE_LEN, FRICTION,
                      G_A, G_M, GAMMA_L, HA, HEAD_R, HEAT_CAP, K_BEND, K_TWIST, LATENT_J,
@@ -101,6 +102,7 @@ def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarr
         row[COUPLING] = 0.0
         row[CONV_GAIN], row[CONV_TCOEF] = 1.0, 0.0
         row[FATIGUE_RATE], row[FATIGUE_MAX] = 0.0, 0.0
+        row[CUTOFF_C] = np.inf  # the physics has no cut; the envs and the rig set one
     refresh_derived(out)
     return out
 
@@ -138,11 +140,12 @@ def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit
         bx, by, eps = x[S_Q], x[S_Q + 1], x[S_Q + 2]
         f1, f2 = kinematics(bx, by, c[LENGTH], tip, dtip, rot)
         spring_geometry(c, bx, by, eps, f1, f2, tip, offset, unit, ext)
-        # Currents: commanded, limited by the supply's compliance voltage, then the budget.
+        # Currents: commanded, cut above the safety temperature, limited by the supply's
+        # compliance voltage, then by the budget.
         e_sub = 0.0
         for k in range(3):
             r = resistance(c, x[S_XI + k])
-            a = abs(cur[k])
+            a = abs(cur[k]) if x[S_T + k] < c[CUTOFF_C] else 0.0
             if c[SUPPLY_V] < np.inf:
                 a = min(a, c[SUPPLY_V] / (SPRINGS_PER_MUSCLE * r + c[WIRING_R]))
             amps[k] = a
