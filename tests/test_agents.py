@@ -228,3 +228,15 @@ def test_benchmark_runs_a_saved_policy(tmp_path):
     kinds = {c["name"]: c["kind"] for c in data["controllers"]}
     assert kinds == {"zero": "heuristic", "tiny": "learned"}
     assert any("orphan.zip" in n for n in data["notes"])
+
+
+def test_shipped_policy_is_benchmarked_by_default(tmp_path):
+    """`python -m agents.benchmark` includes agents/policies/ppo_necktrack as 'learned'."""
+    out_json = tmp_path / "b.json"
+    benchmark.main(["--quick", "--controllers", "policies", "--json", str(out_json),
+                    "--out-dir", str(tmp_path), "--no-plot"])
+    data = json.loads(out_json.read_text())
+    kinds = {c["name"]: c["kind"] for c in data["controllers"]}
+    assert kinds.get("ppo_necktrack") == "learned"
+    c = next(c for c in data["controllers"] if c["name"] == "ppo_necktrack")
+    assert math.isfinite(c["rmse_deg"]) and c["energy_J"] > 0.0
