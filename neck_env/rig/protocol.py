@@ -363,34 +363,30 @@ class Stream:
         return cls(p[0])
 
 
+class _NoPayload:
+    """A message without payload: encodes to nothing, decodes only from nothing."""
+
+    def payload(self) -> bytes:
+        return b""
+
+    @classmethod
+    def from_payload(cls, p: bytes):
+        _check_len(cls.__name__, p, 0)
+        return cls()
+
+
 @dataclass(frozen=True)
-class Stop:
+class Stop(_NoPayload):
     """All relays off, all commands cleared, streaming off."""
 
     TYPE: ClassVar[MsgType] = MsgType.STOP
 
-    def payload(self) -> bytes:
-        return b""
-
-    @classmethod
-    def from_payload(cls, p: bytes) -> "Stop":
-        _check_len(cls.__name__, p, 0)
-        return cls()
-
 
 @dataclass(frozen=True)
-class Heartbeat:
+class Heartbeat(_NoPayload):
     """Keeps the link watchdog fed (any valid frame does too)."""
 
     TYPE: ClassVar[MsgType] = MsgType.HEARTBEAT
-
-    def payload(self) -> bytes:
-        return b""
-
-    @classmethod
-    def from_payload(cls, p: bytes) -> "Heartbeat":
-        _check_len(cls.__name__, p, 0)
-        return cls()
 
 
 @dataclass(frozen=True)
@@ -414,33 +410,17 @@ class Config:
 
 
 @dataclass(frozen=True)
-class ClearFaults:
+class ClearFaults(_NoPayload):
     """Clear the latched fault bits (live ones stay while their cause lasts)."""
 
     TYPE: ClassVar[MsgType] = MsgType.CLEAR_FAULTS
 
-    def payload(self) -> bytes:
-        return b""
-
-    @classmethod
-    def from_payload(cls, p: bytes) -> "ClearFaults":
-        _check_len(cls.__name__, p, 0)
-        return cls()
-
 
 @dataclass(frozen=True)
-class GetStatus:
+class GetStatus(_NoPayload):
     """Ask for one :class:`Status` frame now (its header SEQ echoes this frame's)."""
 
     TYPE: ClassVar[MsgType] = MsgType.GET_STATUS
-
-    def payload(self) -> bytes:
-        return b""
-
-    @classmethod
-    def from_payload(cls, p: bytes) -> "GetStatus":
-        _check_len(cls.__name__, p, 0)
-        return cls()
 
 
 @dataclass(frozen=True)
