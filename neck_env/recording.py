@@ -1,0 +1,429 @@
+"""The recording format of rig logs and any "real" data (design.md 2.2), in one place.
+
+A **recording** is a CSV file with a header line. Required columns::
+
+    t          s, strictly increasing
+    i1,i2,i3   commanded current of muscle k, A (supply setpoint while relay k is commanded on,
+               0 while off): what the host knows, not a measurement
+    theta_deg  measured bending angle, deg (>= 0)
+    phi_deg    measured bending-plane angle, deg, in [0, 360) (ill-defined when theta ~ 0)
+
+Optional: ``T1,T2,T3`` (spring temperatures, deg C), ``roll_deg,pitch_deg``, raw IMU columns,
+measured currents ``i1_meas..``. Unknown columns are kept (``Recording.extra``) and ignored by
+the tools that do not know them.
+
+A **dataset** is a folder of recordings (``*.csv``), in time order by file name (natural order:
+``rec_2`` before ``rec_10``), with an optional ``meta.json`` holding ``ambient_C``,
+``sample_hz`` and ``muscle_azimuth_deg`` (three angles). Other files in the folder are ignored
+(the synthetic generator writes its ground truth *outside* the folder).
+
+Every reading error is a :class:`RecordingError` (a ``ValueError``) whose message names the
+file and, where it applies, the line (the header is line 1).
+
+:class:`RecordingWriter` appends rows and flushes them to the operating system at least once a
+second (of wall time or of recorded time), so a crash loses at most the last second; the
+hardware env records through it.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+REQUIRED_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg")
+TEMPERATURE_COLUMNS = ("T1", "T2", "T3")
+META_KEYS = ("ambient_C", "sample_hz", "muscle_azimuth_deg")
+META_FILE = "meta.json"
+
+
+class RecordingError(ValueError):
+    """A recording or dataset that cannot be read; the message names file and line."""
+
+    def __init__(self, path: str | Path, message: str, line: int | None = None):
+        self.path = Path(path)
+        self.line = line
+        where = f"{self.path}" + (f", line {line}" if line is not None else "")
+        super().__init__(f"{where}: {message}")
+
+
+@dataclass
+class Recording:
+    """One recording: arrays of equal length n (one row per sample)."""
+
+    t: np.ndarray  # (n,) s
+    currents_A: np.ndarray  # (n, 3) commanded i1, i2, i3
+    theta_deg: np.ndarray  # (n,)
+    phi_deg: np.ndarray  # (n,) in [0, 360)
+    temperatures_C: np.ndarray | None = None  # (n, 3) T1..T3 when recorded
+    extra: dict[str, np.ndarray] = field(default_factory=dict)  # other columns, as floats or str
+    name: str = ""
+    path: Path | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        self.t = np.asarray(self.t, float)
+        self.currents_A = np.asarray(self.currents_A, float).reshape(n, 3)
+        self.theta_deg = np.asarray(self.theta_deg, float)
+        self.phi_deg = np.asarray(self.phi_deg, float)
+        if self.temperatures_C is not None:
+            self.temperatures_C = np.asarray(self.temperatures_C, float).reshape(n, 3)
+        for name, arr in (("theta_deg", self.theta_deg), ("phi_deg", self.phi_deg)):
+            if arr.shape != (n,):
+                raise ValueError(f"{name} has shape {arr.shape}, expected ({n},)")
+
+    @property
+    def n(self) -> int:
+        return int(self.t.size)
+
+    @property
+    def i1(self) -> np.ndarray:
+        return self.currents_A[:, 0]
+
+    @property
+    def i2(self) -> np.ndarray:
+        return self.currents_A[:, 1]
+
+    @property
+    def i3(self) -> np.ndarray:
+        return self.currents_A[:, 2]
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if self.n else 0.0
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """All columns in file order: required, temperatures (if any), extra."""
+        cols = {"t": self.t, "i1": self.currents_A[:, 0], "i2": self.currents_A[:, 1],
+                "i3": self.currents_A[:, 2], "theta_deg": self.theta_deg, "phi_deg": self.phi_deg}
+        if self.temperatures_C is not None:
+            for k, name in enumerate(TEMPERATURE_COLUMNS):
+                cols[name] = self.temperatures_C[:, k]
+        cols.update(self.extra)
+        return cols
+
+
+@dataclass
+class Dataset:
+    """A folder of recordings in time order, with its metadata."""
+
+    recordings: list[Recording]
+    meta: dict[str, Any] = field(default_factory=dict)
+    path: Path | None = None
+
+    @property
+    def has_temperatures(self) -> bool:
+        return all(r.temperatures_C is not None for r in self.recordings)
+
+    def __len__(self) -> int:
+        return len(self.recordings)
+
+    def __iter__(self):
+        return iter(self.recordings)
+
+
+# -- reading ------------------------------------------------------------------------------------
+
+def _parse_float(text: str, path: Path, line: int, column: str) -> float:
+    s = text.strip()
+    if s == "":
+        raise RecordingError(path, f"column {column!r} is empty (a NaN row)", line)
+    try:
+        v = float(s)
+    except ValueError:
+        raise RecordingError(path, f"column {column!r} is not a number: {s!r}", line) from None
+    if not math.isfinite(v):
+        raise RecordingError(path, f"column {column!r} is {s!r} (a NaN row; values must be finite)",
+                             line)
+    return v
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read and validate one recording CSV (see the module docstring for the format)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read the file ({exc.strerror or exc})") from exc
+    except UnicodeDecodeError as exc:
+        raise RecordingError(path, f"not a text CSV file ({exc.reason})") from exc
+    if not text.strip():
+        raise RecordingError(path, "the file is empty (expected a header line and data rows)")
+    reader = csv.reader(io.StringIO(text))
+    header: list[str] | None = None
+    line_no = 0
+    rows: list[tuple[int, list[str]]] = []
+    for row in reader:
+        line_no = reader.line_num
+        if not row or all(not c.strip() for c in row):
+            continue  # blank lines are allowed anywhere
+        if header is None:
+            header = [c.strip() for c in row]
+            header_line = line_no
+            continue
+        rows.append((line_no, row))
+    assert header is not None
+    dupes = sorted({c for c in header if header.count(c) > 1})
+    if dupes:
+        raise RecordingError(path, f"duplicate column(s) {', '.join(dupes)} in the header",
+                             header_line)
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:
+        raise RecordingError(path, f"missing required column(s) {', '.join(missing)} "
+                                   f"(header has: {', '.join(header)}; required: "
+                                   f"{', '.join(REQUIRED_COLUMNS)})", header_line)
+    if not rows:
+        raise RecordingError(path, "no data rows after the header (an empty recording)")
+    idx = {c: header.index(c) for c in header}
+    has_T = all(c in idx for c in TEMPERATURE_COLUMNS)
+    numeric = list(REQUIRED_COLUMNS) + (list(TEMPERATURE_COLUMNS) if has_T else [])
+    extra_names = [c for c in header if c not in numeric]
+    values = np.empty((len(rows), len(numeric)))
+    extra_raw: dict[str, list[str]] = {c: [] for c in extra_names}
+    for r, (ln, row) in enumerate(rows):
+        if len(row) != len(header):
+            raise RecordingError(path, f"{len(row)} fields, the header has {len(header)}", ln)
+        for j, c in enumerate(numeric):
+            values[r, j] = _parse_float(row[idx[c]], path, ln, c)
+        for c in extra_names:
+            extra_raw[c].append(row[idx[c]].strip())
+    t = values[:, 0]
+    steps = np.diff(t)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise RecordingError(path, f"time t = {t[k]:.6g} s does not increase (previous row: "
+                                   f"t = {t[k - 1]:.6g} s); t must be strictly increasing",
+                             rows[k][0])
+    cur = values[:, 1:4]
+    neg = np.argwhere(cur < 0)
+    if neg.size:
+        r, k = neg[0]
+        raise RecordingError(path, f"commanded current i{k + 1} = {cur[r, k]:g} A is negative",
+                             rows[r][0])
+    theta = values[:, 4]
+    neg = np.flatnonzero(theta < 0)
+    if neg.size:
+        raise RecordingError(path, f"theta_deg = {theta[neg[0]]:g} is negative", rows[neg[0]][0])
+    phi = np.mod(values[:, 5], 360.0)
+    temps = values[:, 6:9] if has_T else None
+    extra: dict[str, np.ndarray] = {}
+    for c, vals in extra_raw.items():
+        try:
+            extra[c] = np.array([float(v) if v else math.nan for v in vals])
+        except ValueError:
+            extra[c] = np.array(vals, dtype=object)
+    return Recording(t=t, currents_A=cur, theta_deg=theta, phi_deg=phi, temperatures_C=temps,
+                     extra=extra, name=path.stem, path=path)
+
+
+def _natural_key(p: Path):
+    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", p.name)]
+
+
+def read_meta(path: str | Path) -> dict[str, Any]:
+    """Read and validate a dataset's ``meta.json`` (all keys optional, unknown keys kept)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise RecordingError(path, f"not valid JSON ({exc.msg})", exc.lineno) from None
+    if not isinstance(data, dict):
+        raise RecordingError(path, "meta.json must hold a JSON object")
+    for key in ("ambient_C", "sample_hz"):
+        if key in data and data[key] is not None:
+            v = data[key]
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
+                raise RecordingError(path, f"{key} must be a finite number, got {v!r}")
+    if "sample_hz" in data and data["sample_hz"] is not None and data["sample_hz"] <= 0:
+        raise RecordingError(path, f"sample_hz must be > 0, got {data['sample_hz']!r}")
+    if "ambient_C" in data and data["ambient_C"] is not None and not -40 <= data["ambient_C"] <= 60:
+        raise RecordingError(path, f"ambient_C must lie in [-40, 60] C, got {data['ambient_C']!r}")
+    az = data.get("muscle_azimuth_deg")
+    if az is not None:
+        if not (isinstance(az, list) and len(az) == 3 and all(
+                isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a)
+                for a in az)):
+            raise RecordingError(path, f"muscle_azimuth_deg must be a list of three angles, "
+                                       f"got {az!r}")
+    return data
+
+
+def read_dataset(directory: str | Path) -> Dataset:
+    """Read every ``*.csv`` of a folder in natural name order, and its optional ``meta.json``."""
+    directory = Path(directory)
+    if not directory.exists():
+        raise RecordingError(directory, "no such dataset folder")
+    if not directory.is_dir():
+        raise RecordingError(directory, "a dataset must be a folder of *.csv recordings")
+    files = sorted((p for p in directory.iterdir() if p.suffix.lower() == ".csv" and p.is_file()),
+                   key=_natural_key)
+    if not files:
+        raise RecordingError(directory, "no *.csv recordings in this folder")
+    meta_path = directory / META_FILE
+    meta = read_meta(meta_path) if meta_path.exists() else {}
+    return Dataset([read_recording(f) for f in files], meta, directory)
+
+
+# -- writing ------------------------------------------------------------------------------------
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, str):
+        return v
+    f = float(v)
+    if not math.isfinite(f):
+        return "nan"
+    return repr(round(f, 9)) if abs(f) >= 1e-4 or f == 0 else f"{f:.9g}"
+
+
+class RecordingWriter:
+    """Append rows to a recording CSV as they come; flushed at least every ``flush_s`` seconds.
+
+    ``columns`` must contain the required ones (``t, i1, i2, i3, theta_deg, phi_deg``); extra
+    columns (``T1..T3``, raw IMU, ...) are written in the given order. Rows are dicts or
+    keyword arguments; required and ``T1..T3`` values must be finite, other missing extra values
+    are written empty. The writer validates what
+    :func:`read_recording` would reject (missing required value, NaN, t not increasing) and
+    raises ``ValueError`` before writing a bad row, so what is on disk always reads back.
+
+    The file is flushed to the operating system whenever ``flush_s`` of wall time or of
+    recorded time has passed since the last flush (and on ``close``), so a crash of the
+    process loses at most that much; ``fsync=True`` also forces it to the disk.
+    """
+
+    def __init__(self, path: str | Path, columns: Sequence[str] = REQUIRED_COLUMNS,
+                 flush_s: float = 0.5, fsync: bool = False):
+        self.path = Path(path)
+        cols = [str(c).strip() for c in columns]
+        missing = [c for c in REQUIRED_COLUMNS if c not in cols]
+        if missing:
+            raise ValueError(f"RecordingWriter({self.path}): missing required column(s) "
+                             f"{', '.join(missing)}")
+        if len(set(cols)) != len(cols):
+            raise ValueError(f"RecordingWriter({self.path}): duplicate columns in {cols}")
+        if not (flush_s >= 0 and math.isfinite(flush_s)):
+            raise ValueError(f"flush_s must be >= 0, got {flush_s!r}")
+        self.columns = tuple(cols)
+        # required and thermistor columns must be finite in every row (the reader rejects NaN
+        # rows there); other extra columns may be left empty
+        self._strict = [c for c in cols if c in REQUIRED_COLUMNS or c in TEMPERATURE_COLUMNS]
+        self.flush_s = float(flush_s)
+        self.fsync = fsync
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, "w", encoding="utf-8", newline="")
+        self._f.write(",".join(self.columns) + "\n")
+        self._last_t = -math.inf
+        self._flush_wall = time.monotonic()
+        self._flush_t: float | None = None
+        self.rows = 0
+        self._flush()
+
+    def write(self, row: Mapping[str, Any] | None = None, **values: Any) -> None:
+        """Append one row (mapping and/or keywords of column -> value)."""
+        if self._f.closed:
+            raise ValueError(f"{self.path}: writer is closed")
+        data = dict(row or {})
+        data.update(values)
+        unknown = set(data) - set(self.columns)
+        if unknown:
+            raise ValueError(f"{self.path}: unknown column(s) {sorted(unknown)}; "
+                             f"columns are {list(self.columns)}")
+        for c in self._strict:
+            v = data.get(c)
+            if v is None or not math.isfinite(float(v)):
+                raise ValueError(f"{self.path}: row {self.rows + 1} needs a finite {c}, got {v!r}")
+        t = float(data["t"])
+        if t <= self._last_t:
+            raise ValueError(f"{self.path}: t = {t} s does not increase (previous {self._last_t} s)")
+        for k in ("i1", "i2", "i3", "theta_deg"):
+            if float(data[k]) < 0:
+                raise ValueError(f"{self.path}: {k} = {data[k]} must be >= 0")
+        data["phi_deg"] = float(data["phi_deg"]) % 360.0
+        self._f.write(",".join("" if data.get(c) is None else _fmt(data[c])
+                               for c in self.columns) + "\n")
+        self._last_t = t
+        self.rows += 1
+        if self._flush_t is None:
+            self._flush_t = t
+        now = time.monotonic()
+        if now - self._flush_wall >= self.flush_s or t - self._flush_t >= self.flush_s:
+            self._flush(t)
+
+    def write_many(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        for r in rows:
+            self.write(r)
+
+    def _flush(self, t: float | None = None) -> None:
+        self._f.flush()
+        if self.fsync:
+            os.fsync(self._f.fileno())
+        self._flush_wall = time.monotonic()
+        self._flush_t = t
+
+    def flush(self) -> None:
+        if not self._f.closed:
+            self._flush(self._last_t if self.rows else None)
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._f.closed
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def write_recording(path: str | Path, recording: Recording | Mapping[str, Sequence[float]]) -> Path:
+    """Write a whole recording (a :class:`Recording` or a mapping column -> values) as CSV.
+
+    Validated like :class:`RecordingWriter` rows (required columns, finite, t increasing)."""
+    path = Path(path)
+    cols = recording.columns() if isinstance(recording, Recording) else dict(recording)
+    names = [str(c) for c in cols]
+    missing = [c for c in REQUIRED_COLUMNS if c not in names]
+    if missing:
+        raise ValueError(f"{path}: missing required column(s) {', '.join(missing)}")
+    arrays = [np.atleast_1d(np.asarray(cols[c])) for c in cols]
+    lengths = {a.shape[0] for a in arrays}
+    if len(lengths) != 1:
+        raise ValueError(f"{path}: columns have different lengths {sorted(lengths)}")
+    req = {c: np.asarray(cols[c], float) for c in REQUIRED_COLUMNS}
+    for c, a in req.items():
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{path}: column {c} has non-finite values")
+    if np.any(np.diff(req["t"]) <= 0):
+        raise ValueError(f"{path}: t must be strictly increasing")
+    for c in ("i1", "i2", "i3", "theta_deg"):
+        if np.any(req[c] < 0):
+            raise ValueError(f"{path}: {c} must be >= 0")
+    arrays[names.index("phi_deg")] = np.mod(req["phi_deg"], 360.0)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [",".join(names)]
+    for i in range(lengths.pop()):
+        lines.append(",".join(_fmt(a[i]) for a in arrays))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def write_meta(directory: str | Path, meta: Mapping[str, Any]) -> Path:
+    """Write a dataset's ``meta.json``."""
+    p = Path(directory) / META_FILE
+    p.write_text(json.dumps(dict(meta), indent=2) + "\n")
+    return p

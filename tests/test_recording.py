@@ -1,0 +1,157 @@
+"""The recording format (design.md 2.2): reading, validation errors naming file and line,
+datasets in name order with meta.json, and the flushing writer."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from neck_env.recording import (REQUIRED_COLUMNS, Recording, RecordingError, RecordingWriter,
+                                read_dataset, read_recording, write_meta, write_recording)
+
+GOOD = textwrap.dedent("""\
+    t,i1,i2,i3,theta_deg,phi_deg,T1,T2,T3,note
+    0.00,0,0,0,0.1,12.0,25.0,25.1,24.9,start
+    0.02,5,0,0,0.2,181.0,25.5,25.1,24.9,
+    0.04,5,0,0,0.4,361.0,26.0,25.2,25.0,x
+    """)
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def test_read_good_recording(tmp_path):
+    rec = read_recording(_write(tmp_path / "rec_01.csv", GOOD))
+    assert rec.n == 3 and rec.name == "rec_01"
+    np.testing.assert_allclose(rec.t, [0, 0.02, 0.04])
+    np.testing.assert_allclose(rec.i1, [0, 5, 5])
+    np.testing.assert_allclose(rec.phi_deg, [12.0, 181.0, 1.0])  # wrapped into [0, 360)
+    assert rec.temperatures_C.shape == (3, 3)
+    assert list(rec.extra) == ["note"]  # unknown columns are kept
+    assert rec.extra["note"][0] == "start"
+
+
+def test_temperatures_optional(tmp_path):
+    text = "t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,1,0,0,1,180\n"
+    rec = read_recording(_write(tmp_path / "a.csv", text))
+    assert rec.temperatures_C is None
+
+
+@pytest.mark.parametrize("text, fragment, line", [
+    ("t,i1,i2,theta_deg,phi_deg\n0,0,0,0,0\n", "missing required column(s) i3", 1),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,0,0,0,0\n0.1,0,0,0,0,0\n", "does not increase", 4),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,0,0,nan,0\n", "NaN", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,0,0,,0\n", "empty", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,zero,0,0,0\n", "not a number", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,0,0,0\n", "fields", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,-1,0,0,0\n", "negative", 2),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n", "no data rows", None),
+    ("", "empty", None),
+    ("\n\n", "empty", None),
+])
+def test_bad_recordings_name_file_and_line(tmp_path, text, fragment, line):
+    p = _write(tmp_path / "rec_07.csv", text)
+    with pytest.raises(RecordingError) as exc:
+        read_recording(p)
+    msg = str(exc.value)
+    assert "rec_07.csv" in msg and fragment in msg, msg
+    assert exc.value.line == line
+    if line is not None:
+        assert f"line {line}" in msg
+
+
+def test_dataset_natural_order_and_meta(tmp_path):
+    for name in ("rec_10.csv", "rec_2.csv", "rec_1.csv"):
+        _write(tmp_path / name, GOOD)
+    (tmp_path / "notes.txt").write_text("ignored")
+    (tmp_path / "meta.json").write_text(json.dumps({"ambient_C": 22.5, "sample_hz": 50,
+                                                    "muscle_azimuth_deg": [180, 60, 300],
+                                                    "operator": "kept"}))
+    ds = read_dataset(tmp_path)
+    assert [r.name for r in ds] == ["rec_1", "rec_2", "rec_10"]
+    assert ds.meta["ambient_C"] == 22.5 and ds.meta["operator"] == "kept"
+    assert ds.has_temperatures
+
+
+def test_dataset_errors(tmp_path):
+    with pytest.raises(RecordingError, match="no \\*.csv recordings"):
+        read_dataset(tmp_path)
+    with pytest.raises(RecordingError, match="no such dataset folder"):
+        read_dataset(tmp_path / "missing")
+    _write(tmp_path / "rec_1.csv", GOOD)
+    _write(tmp_path / "rec_2.csv", "t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0,0,0,0,0,0\n")
+    with pytest.raises(RecordingError, match=r"rec_2\.csv, line 3"):
+        read_dataset(tmp_path)
+    (tmp_path / "rec_2.csv").unlink()
+    (tmp_path / "meta.json").write_text('{"ambient_C": "warm"}')
+    with pytest.raises(RecordingError, match="meta.json.*ambient_C"):
+        read_dataset(tmp_path)
+    (tmp_path / "meta.json").write_text('{"muscle_azimuth_deg": [1, 2]}')
+    with pytest.raises(RecordingError, match="three angles"):
+        read_dataset(tmp_path)
+    (tmp_path / "meta.json").write_text('{oops')
+    with pytest.raises(RecordingError, match="meta.json.*not valid JSON"):
+        read_dataset(tmp_path)
+
+
+def test_write_read_round_trip(tmp_path):
+    n = 50
+    t = np.arange(n) * 0.02
+    cols = {"t": t, "i1": np.where(t < 0.5, 6.0, 0.0), "i2": np.zeros(n), "i3": np.zeros(n),
+            "theta_deg": np.linspace(0, 10, n), "phi_deg": np.full(n, 365.5),
+            "T1": np.full(n, 30.0), "T2": np.full(n, 25.0), "T3": np.full(n, 25.0),
+            "ax_g": np.linspace(-1, 1, n)}
+    p = write_recording(tmp_path / "r.csv", cols)
+    rec = read_recording(p)
+    np.testing.assert_allclose(rec.t, t)
+    np.testing.assert_allclose(rec.theta_deg, cols["theta_deg"])
+    np.testing.assert_allclose(rec.phi_deg, 5.5)
+    np.testing.assert_allclose(rec.extra["ax_g"], cols["ax_g"])
+    p2 = write_recording(tmp_path / "r2.csv", rec)
+    assert read_recording(p2).columns().keys() == rec.columns().keys()
+    with pytest.raises(ValueError, match="strictly increasing"):
+        write_recording(tmp_path / "bad.csv", dict(cols, t=t[::-1]))
+
+
+def test_writer_validates_and_flushes(tmp_path):
+    p = tmp_path / "live.csv"
+    w = RecordingWriter(p, list(REQUIRED_COLUMNS) + ["T1", "T2", "T3"], flush_s=0.0)
+    w.write(t=0.0, i1=0, i2=0, i3=0, theta_deg=0.0, phi_deg=0.0, T1=25, T2=25, T3=25)
+    w.write({"t": 0.02, "i1": 7, "i2": 0, "i3": 0, "theta_deg": 0.1, "phi_deg": 180.0,
+             "T1": 26, "T2": 25, "T3": 25})
+    # flushed as it goes: another reader sees both rows before close
+    assert read_recording(p).n == 2
+    with pytest.raises(ValueError, match="does not increase"):
+        w.write(t=0.01, i1=0, i2=0, i3=0, theta_deg=0, phi_deg=0, T1=25, T2=25, T3=25)
+    with pytest.raises(ValueError, match="finite theta_deg"):
+        w.write(t=0.04, i1=0, i2=0, i3=0, theta_deg=float("nan"), phi_deg=0, T1=25, T2=25, T3=25)
+    with pytest.raises(ValueError, match="finite T2"):
+        w.write(t=0.04, i1=0, i2=0, i3=0, theta_deg=0, phi_deg=0, T1=25, T3=25)
+    with pytest.raises(ValueError, match="unknown column"):
+        w.write(t=0.04, i1=0, i2=0, i3=0, theta_deg=0, phi_deg=0, bogus=1)
+    w.close()
+    rec = read_recording(p)
+    assert rec.n == 2 and rec.temperatures_C[1, 0] == 26
+
+
+def test_writer_crash_loses_at_most_the_last_second(tmp_path):
+    """A process killed mid-recording leaves every row older than the flush interval on disk."""
+    p = tmp_path / "crash.csv"
+    code = textwrap.dedent(f"""
+        import os, time
+        from neck_env.recording import RecordingWriter
+        w = RecordingWriter({str(p)!r}, flush_s=1.0)
+        for k in range(300):  # 6 s of data at 50 Hz, written instantly
+            w.write(t=k * 0.02, i1=0, i2=0, i3=0, theta_deg=0.0, phi_deg=0.0)
+        os._exit(1)  # crash: no close, no atexit, no buffer flush
+        """)
+    subprocess.run([sys.executable, "-c", code], check=False)
+    lines = p.read_text().splitlines()
+    rows = len(lines) - 1
+    assert rows >= 300 - 50 - 1, rows  # at most the last second (50 rows) lost
