@@ -1,0 +1,56 @@
+"""Command line of the diagnosis: ``python -m neck_env.gap DATASET_DIR --json REPORT.json``
+(console script ``neck-gap``).
+
+Exit codes: 0 done (whatever the verdict), 2 bad input (the message names the file and line;
+nothing is written), 1 an unexpected failure (nothing is written either: the JSON report is
+written last, and only when everything before it succeeded).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from ..recording import RecordingError, read_dataset
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="neck-gap",
+        description="Sim-to-real gap diagnosis of a dataset of neck recordings: calibrates the "
+                    "nominal model, localizes the residual, attributes it to catalogued "
+                    "unmodelled effects on held-out recordings and exports the corrected model.")
+    ap.add_argument("dataset", help="folder of recordings (*.csv, optional meta.json)")
+    ap.add_argument("--json", required=True, metavar="REPORT.json",
+                    help="report to write; plots, REPORT_params.json and REPORT_effects.json "
+                         "go beside it")
+    ap.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    ap.add_argument("--quiet", action="store_true", help="print only the verdict line")
+    args = ap.parse_args(argv)
+
+    log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
+    try:
+        ds = read_dataset(args.dataset)
+    except RecordingError as exc:
+        print(f"neck-gap: bad input: {exc}", file=sys.stderr)
+        return 2
+    from .diagnose import diagnose
+    from .report import text_report, write_outputs
+    try:
+        dg = diagnose(ds, log=log)
+        rep = write_outputs(dg, args.json, dataset_path=Path(args.dataset),
+                            make_plots=not args.no_plots)
+    except RecordingError as exc:
+        print(f"neck-gap: bad input: {exc}", file=sys.stderr)
+        return 2
+    if args.quiet:
+        print(f"verdict: {', '.join(rep['verdict']) or 'none'}; unexplained: {rep['unexplained']}")
+    else:
+        print(text_report(rep))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,181 @@
+"""Where the residual lies: by signal, phase (from the commanded currents), muscle and current.
+
+Phases, per sample, from the commanded currents only (what the host knows):
+
+* ``heating``: some muscle is commanded on,
+* ``cooling``: all off, within ``COOLING_S`` after the last switch-off in this recording,
+* ``rest``: all off, before the first switch-on or more than ``COOLING_S`` after the last one.
+
+For theta and phi the muscle is the active one (the highest commanded current while heating,
+the last one switched off while cooling; none at rest). Temperature channel k is labelled by
+its own muscle and by its own phase (muscle k on / recently off / neither).
+
+Residual energy: theta and weighted phi in deg^2, temperatures as (e_T / SIGMA_T)^2 / 3 (so
+the three thermistors together weigh like one tilt signal with 3 C ~ 1 deg) -- the same
+scaling as the fit.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from .model import SIGMA_T
+
+COOLING_S = 20.0  # about one cooling time constant of the calibrated springs (~22 s)
+PHASES = ("heating", "cooling", "rest")
+
+
+def phases(t: np.ndarray, cmd: np.ndarray, cooling_s: float = COOLING_S):
+    """(phase index (n,) 0/1/2, muscle (n,) 0 = none else 1..3, current (n,) A) for tilt."""
+    n = t.size
+    on = cmd > 0
+    any_on = on.any(axis=1)
+    phase = np.full(n, 2, int)
+    muscle = np.zeros(n, int)
+    level = np.zeros(n)
+    last_off_t = -math.inf
+    last_m, last_i = 0, 0.0
+    for j in range(n):
+        if any_on[j]:
+            phase[j] = 0
+            k = int(np.argmax(cmd[j]))
+            muscle[j] = k + 1
+            level[j] = cmd[j, k]
+            last_m, last_i = k + 1, cmd[j, k]
+            last_off_t = t[j]
+        elif t[j] - last_off_t <= cooling_s:
+            phase[j] = 1
+            muscle[j] = last_m
+            level[j] = last_i
+    return phase, muscle, level
+
+
+def channel_phases(t: np.ndarray, cmd_k: np.ndarray, cooling_s: float = COOLING_S) -> np.ndarray:
+    """Phase of one muscle's own channel (its temperature)."""
+    on = cmd_k > 0
+    phase = np.full(t.size, 2, int)
+    last = -math.inf
+    for j in range(t.size):
+        if on[j]:
+            phase[j] = 0
+            last = t[j]
+        elif t[j] - last <= cooling_s:
+            phase[j] = 1
+    return phase
+
+
+def decompose(recs: Sequence[dict]) -> dict:
+    """Residual energy shares.
+
+    ``recs``: per recording dicts with ``t``, ``cmd`` (n, 3), ``e_theta``, ``e_phi`` (n,) and
+    optionally ``e_T`` (n, 3). Returns {"items": [...], "by_current": [...], "by_signal": {...},
+    "by_phase": {...}, "total_energy": float, "n_samples": int}."""
+    acc: dict[tuple, list[float]] = {}
+    cur_acc: dict[tuple, float] = {}
+    n_total = 0
+    time_count: dict[tuple, int] = {}
+    for r in recs:
+        t, cmd = r["t"], r["cmd"]
+        ph, mu, lvl = phases(t, cmd)
+        n_total += t.size
+        signals = [("theta", r["e_theta"] ** 2, ph, mu), ("phi", r["e_phi"] ** 2, ph, mu)]
+        if r.get("e_T") is not None:
+            for k in range(3):
+                e = (r["e_T"][:, k] / SIGMA_T) ** 2 / 3.0
+                signals.append(("temperature", e, channel_phases(t, cmd[:, k]),
+                                np.full(t.size, k + 1)))
+        for sig, e2, p, m in signals:
+            for pi in range(3):
+                for mk in range(4):
+                    sel = (p == pi) & (m == mk)
+                    if not sel.any():
+                        continue
+                    key = (sig, PHASES[pi], mk)
+                    a = acc.setdefault(key, [0.0, 0])
+                    a[0] += float(e2[sel].sum())
+                    a[1] += int(sel.sum())
+            bins = np.round(lvl * 2) / 2
+            for b in np.unique(bins):
+                sel = bins == b
+                cur_acc[(sig, float(b))] = cur_acc.get((sig, float(b)), 0.0) + float(e2[sel].sum())
+        for pi in range(3):
+            for mk in range(4):
+                sel = (ph == pi) & (mu == mk)
+                time_count[(PHASES[pi], mk)] = time_count.get((PHASES[pi], mk), 0) + int(sel.sum())
+    total = sum(v[0] for v in acc.values()) or 1e-300
+    items = []
+    for (sig, phase, mk), (energy, count) in acc.items():
+        items.append({"signal": sig, "phase": phase, "muscle": (mk if mk else None),
+                      "share": energy / total,
+                      # fraction of this signal's samples that fall in the group
+                      "time_fraction": count / max(1, n_total * (3 if sig == "temperature" else 1)),
+                      "rms": math.sqrt(energy / max(count, 1)) * (SIGMA_T * math.sqrt(3) if sig == "temperature" else 1.0)})
+    items.sort(key=lambda d: -d["share"])
+    by_signal: dict[str, float] = {}
+    by_phase: dict[str, float] = {}
+    for it in items:
+        by_signal[it["signal"]] = by_signal.get(it["signal"], 0.0) + it["share"]
+        by_phase[it["phase"]] = by_phase.get(it["phase"], 0.0) + it["share"]
+    by_current = [{"signal": s, "current_A": b, "share": e / total}
+                  for (s, b), e in sorted(cur_acc.items(), key=lambda kv: (kv[0][0], kv[0][1]))]
+    phase_time = {p: sum(c for (pp, _), c in time_count.items() if pp == p) / max(n_total, 1)
+                  for p in PHASES}
+    return {"items": items, "by_current": by_current, "by_signal": by_signal,
+            "by_phase": by_phase, "phase_time_fraction": phase_time,
+            "total_energy": total, "n_samples": n_total}
+
+
+def _spearman(a: np.ndarray, b: np.ndarray) -> float:
+    if a.size < 3:
+        return 0.0
+    ra = np.argsort(np.argsort(a)).astype(float)
+    rb = np.argsort(np.argsort(b)).astype(float)
+    ra -= ra.mean()
+    rb -= rb.mean()
+    den = math.sqrt(float((ra * ra).sum() * (rb * rb).sum()))
+    return float((ra * rb).sum() / den) if den > 0 else 0.0
+
+
+def pattern(dec: dict, recs: Sequence[dict]) -> dict:
+    """A short reading of a decomposition: which signal, whether one phase or muscle
+    concentrates the residual (share per unit of time), and whether it grows across the
+    recordings (file order)."""
+    by_sig = dec["by_signal"]
+    tilt = by_sig.get("theta", 0.0) + by_sig.get("phi", 0.0)
+    sig = max(by_sig, key=by_sig.get) if by_sig else None
+    # density of tilt residual energy per phase: share / time fraction
+    tilt_items = [it for it in dec["items"] if it["signal"] in ("theta", "phi")]
+    tot_tilt = sum(it["share"] for it in tilt_items) or 1e-300
+    dens = {}
+    for ph in PHASES:
+        share = sum(it["share"] for it in tilt_items if it["phase"] == ph) / tot_tilt
+        tf = dec["phase_time_fraction"].get(ph, 0.0)
+        if tf > 0.02:
+            dens[ph] = share / tf
+    if dens:
+        top = max(dens, key=dens.get)
+        rest_d = [v for k, v in dens.items() if k != top]
+        concentrated = top if rest_d and dens[top] > 1.5 * max(rest_d) else "all phases alike"
+    else:
+        concentrated = None
+    mus = {}
+    for m in (1, 2, 3):
+        e = sum(it["share"] for it in tilt_items if it["muscle"] == m)
+        tf = sum(it["time_fraction"] for it in tilt_items if it["muscle"] == m and it["signal"] == "theta")
+        if tf > 0.02:
+            mus[m] = e / tot_tilt / tf
+    if mus:
+        mt = max(mus, key=mus.get)
+        others = [v for k, v in mus.items() if k != mt]
+        muscle = mt if others and mus[mt] > 1.5 * max(others) else "all muscles alike"
+    else:
+        muscle = None
+    per = np.array([math.sqrt(float(np.mean(r["e_theta"] ** 2 + r["e_phi"] ** 2) / 2)) for r in recs])
+    trend = _spearman(np.arange(per.size, dtype=float), per)
+    return {"dominant_signal": sig, "tilt_share": tilt, "temperature_share": by_sig.get("temperature", 0.0),
+            "phase_density": dens, "concentrated_in_phase": concentrated,
+            "muscle_density": {str(k): v for k, v in mus.items()}, "concentrated_in_muscle": muscle,
+            "per_recording_rms": per.tolist(), "trend_across_recordings": trend}

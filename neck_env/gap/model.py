@@ -1,0 +1,636 @@
+"""The model the diagnosis fits: nominal plant + sensor pipeline + candidate effects, batched.
+
+A *setting* is a dict of natural parameter values (keys below); ``Model.predict`` runs many
+settings over every recording of a dataset in **one** compiled plant call per time step (rigs
+= settings x recordings), then maps the head pose through the IMU model to the tilt the rig
+would report, and interpolates onto the recording's sample times.
+
+Nominal parameters (the calibrated model's free ones, see ``neck_env.calibration.FREE``, as
+multipliers / shifts of the defaults so that 1 / 0 is "as calibrated"):
+
+* ``h_scale``       convection coefficient x
+* ``As_shift_C``    all four transformation temperatures + (datasheet spacing kept)
+* ``CA_scale``      stress coefficient C_A = C_M x
+* ``EI_scale``      backbone bending stiffness x
+* ``gammaL_scale``  recoverable shear strain x
+* ``ambient_C``     room temperature (from meta.json / thermistors when known)
+* ``offset_x_deg``, ``offset_y_deg``  sensor zero offset of the tilt vector (accelerometer
+  bias + gyro bias x filter time constant, bounded by the MPU6050's post-calibration biases)
+
+Effect parameters are keyed ``"<effect>.<param>"``; ``imu_misalignment`` is fitted with its tilt
+as a vector (``tilt_x_deg``, ``tilt_y_deg``) and converted back to ``tilt_deg`` /
+``tilt_dir_deg``; ``supply_limit`` fits the compliance voltage with the wiring resistance held
+at its catalogue default (only ``V / (R_springs + R_wiring)`` is seen by the data).
+
+Assumptions (documented in docs/gap.md): every recording starts at rest (upright, springs at
+ambient, martensite); effects that build up over use (``sma_fatigue``) carry across recordings
+in file order; the commanded current of a row holds until the next row (zero-order hold).
+The fused IMU tilt is modelled by the accelerometer tilt of the noise-free reading (with an
+ideal gyro the complementary filter has no lag).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .. import effects as fx
+from ..params import NeckParams, default_params
+from ..physics import layout as L
+from ..physics.plant import constants_from_params, initial_state, step_inplace
+from ..recording import Dataset
+
+DT_S = 0.02  # simulation step (50 Hz), the brief's and the rig's rate
+FIT_HZ = 10.0  # residuals for fitting / held-out scoring are taken at about this rate
+PHI_REF_DEG = 5.0  # plain phi errors are reported where both thetas exceed this
+SIGMA_THETA = 1.0  # residual scales (deg of tilt, deg C): 1 deg of tilt ~ 3 deg C of spring
+SIGMA_T = 3.0
+DELAY_SUB = 10  # sub-samples per step for fractional actuation delays
+
+
+# --------------------------------------------------------------------------------------------
+# parameter specifications
+
+@dataclass(frozen=True)
+class ParamSpec:
+    key: str
+    lower: float
+    upper: float
+    start: float
+    kind: str  # "plant" (needs a simulation), "sensor" (post-processing only), "input" (delay)
+    log: bool = False
+    prior_sigma: float | None = None  # in natural units (log units when log)
+    prior_center: float | None = None  # defaults to start
+    doc: str = ""
+
+    def to_unit(self, v: float) -> float:
+        if self.log:
+            return (math.log(v) - math.log(self.lower)) / (math.log(self.upper) - math.log(self.lower))
+        return (v - self.lower) / (self.upper - self.lower)
+
+    def from_unit(self, u: float) -> float:
+        u = min(max(u, 0.0), 1.0)
+        if self.log:
+            return math.exp(math.log(self.lower) + u * (math.log(self.upper) - math.log(self.lower)))
+        return self.lower + u * (self.upper - self.lower)
+
+    def prior_residual(self, v: float) -> float:
+        if self.prior_sigma is None:
+            return 0.0
+        c = self.start if self.prior_center is None else self.prior_center
+        if self.log:
+            return (math.log(v) - math.log(c)) / self.prior_sigma
+        return (v - c) / self.prior_sigma
+
+
+def nominal_specs(ambient: float, ambient_sigma: float) -> list[ParamSpec]:
+    """The nominal model's free parameters with bounds = the calibration's plausible spread.
+
+    The bounds are the spread the project already treats as "the same rig" (``NeckTrack-v0``'s
+    domain randomization, ``envs.core.Randomization``): a value outside them is not a
+    recalibration any more but an effect. Weak priors keep unidentifiable directions at the
+    calibrated values.
+    """
+    lo_a, hi_a = ambient - 2.5 * ambient_sigma, ambient + 2.5 * ambient_sigma
+    return [
+        ParamSpec("h_scale", 0.75, 1.33, 1.0, "plant", log=True, prior_sigma=0.15,
+                  doc="convection coefficient multiplier"),
+        ParamSpec("As_shift_C", -4.0, 4.0, 0.0, "plant", prior_sigma=2.0,
+                  doc="shift of the transformation temperatures, C"),
+        ParamSpec("CA_scale", 0.8, 1.25, 1.0, "plant", log=True, prior_sigma=0.12,
+                  doc="stress coefficient multiplier"),
+        ParamSpec("EI_scale", 0.8, 1.25, 1.0, "plant", log=True, prior_sigma=0.12,
+                  doc="bending stiffness multiplier"),
+        ParamSpec("gammaL_scale", 0.85, 1.15, 1.0, "plant", prior_sigma=0.08,
+                  doc="recoverable strain multiplier"),
+        ParamSpec("ambient_C", max(lo_a, -40.0), min(hi_a, 60.0), ambient, "plant",
+                  prior_sigma=ambient_sigma, doc="ambient temperature, C"),
+        ParamSpec("offset_x_deg", -1.5, 1.5, 0.0, "sensor", prior_sigma=0.5,
+                  doc="IMU zero offset, tilt x, deg"),
+        ParamSpec("offset_y_deg", -1.5, 1.5, 0.0, "sensor", prior_sigma=0.5,
+                  doc="IMU zero offset, tilt y, deg"),
+    ]
+
+
+DRIFT_PER_S = 100.0  # drift nuisance rates are in deg per 100 s of recorded time
+
+
+def drift_specs() -> list[ParamSpec]:
+    """A nuisance, not an effect: a tilt offset growing linearly with recorded time.
+
+    Added to the nominal model only when the reading at rest is seen to drift through the
+    dataset, which no catalogued effect does (see ``diagnose``). It keeps a sensor effect such
+    as ``imu_misalignment`` from being blamed for the mean of a drift it cannot follow; the
+    drift itself is reported as unexplained."""
+    return [ParamSpec(f"drift_{a}_deg_per_100s", -5.0, 5.0, 0.0, "sensor", prior_sigma=2.0,
+                      doc=f"tilt {a} offset drift, deg per 100 s of recorded time (nuisance)")
+            for a in ("x", "y")]
+
+
+def drift_offset(setting: Mapping[str, float], axis: str, t_cum: np.ndarray) -> np.ndarray | float:
+    rate = float(setting.get(f"drift_{axis}_deg_per_100s", 0.0))
+    return rate * t_cum / DRIFT_PER_S if rate else 0.0
+
+
+# Effect parameters as fitted: bounds extended down to "off" so that every candidate nests the
+# nominal model (an effect can always be switched off by the fit).
+EFFECT_SPECS: dict[str, list[ParamSpec]] = {
+    "imu_misalignment": [
+        ParamSpec("imu_misalignment.yaw_deg", -30.0, 30.0, 0.0, "sensor"),
+        ParamSpec("imu_misalignment.tilt_x_deg", -7.0, 7.0, 0.0, "sensor"),
+        ParamSpec("imu_misalignment.tilt_y_deg", -7.0, 7.0, 0.0, "sensor"),
+    ],
+    "head_payload": [
+        ParamSpec("head_payload.mass_kg", 0.0, 0.45, 0.1, "plant"),
+        ParamSpec("head_payload.com_height_m", 0.0, 0.09, 0.03, "plant"),
+    ],
+    "backbone_viscoelasticity": [
+        ParamSpec("backbone_viscoelasticity.stiffness_ratio", 0.0, 3.5, 0.5, "plant"),
+        ParamSpec("backbone_viscoelasticity.tau_s", 0.3, 10.0, 2.0, "plant", log=True),
+    ],
+    "supply_limit": [
+        ParamSpec("supply_limit.compliance_V", 2.0, 16.0, 8.0, "plant", log=True),
+    ],
+    "actuation_delay": [
+        ParamSpec("actuation_delay.delay_s", 0.0, 1.3, 0.2, "input"),
+    ],
+    "thermal_coupling": [
+        ParamSpec("thermal_coupling.conductance_W_K", 0.0, 0.04, 0.005, "plant"),
+    ],
+    "convection_change": [
+        ParamSpec("convection_change.gain", 0.3, 3.0, 1.0, "plant", log=True),
+        ParamSpec("convection_change.tcoef_per_K", 0.0, 0.012, 0.0, "plant"),
+    ],
+    "sma_fatigue": [
+        ParamSpec("sma_fatigue.rate", 0.0, 0.06, 0.01, "plant"),
+        ParamSpec("sma_fatigue.max_loss", 0.05, 0.55, 0.3, "plant"),
+    ],
+    "backbone_friction": [
+        ParamSpec("backbone_friction.friction_Nm", 0.0, 0.06, 0.005, "plant"),
+    ],
+}
+# Nominal parameters an effect replaces (held at their calibrated value while it is fitted).
+REPLACES = {"convection_change": ("h_scale",)}
+FIXED_EFFECT_PARAMS = {"supply_limit": {"wiring_ohm": 0.1}}
+
+
+def catalogue_effects(setting: Mapping[str, float], names: Sequence[str]) -> dict[str, dict[str, float]]:
+    """The effects of a setting in the catalogue's own parameters (``neck_env.effects``)."""
+    out: dict[str, dict[str, float]] = {}
+    for name in names:
+        vals = {k.split(".", 1)[1]: float(v) for k, v in setting.items()
+                if k.startswith(name + ".")}
+        vals.update(FIXED_EFFECT_PARAMS.get(name, {}))
+        if name == "imu_misalignment":
+            tx, ty = vals.pop("tilt_x_deg", 0.0), vals.pop("tilt_y_deg", 0.0)
+            vals["tilt_deg"] = math.hypot(tx, ty)
+            vals["tilt_dir_deg"] = math.degrees(math.atan2(ty, tx)) % 360.0
+        out[name] = vals
+    return out
+
+
+def clip_to_catalogue(effects: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, float]]:
+    """Effects clipped into the catalogue's ranges (what ``NeckTrack-v0(effects=...)`` accepts)."""
+    out = {}
+    for name, vals in effects.items():
+        spec = fx.EFFECTS[name].params
+        out[name] = {k: float(min(max(v, spec[k].low), spec[k].high)) for k, v in vals.items()}
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# data prepared for batched simulation
+
+@dataclass
+class Prepared:
+    """A dataset on the simulation grid."""
+
+    names: list[str]
+    n_rec: int
+    n_steps: int  # S: steps of the longest recording
+    t0: np.ndarray  # (R,)
+    cmd_fine: np.ndarray  # (R, S * DELAY_SUB + pad) commanded current^2 per muscle: (R, F, 3)
+    currents: np.ndarray  # (S, R, 3) commanded currents per step (no delay)
+    # full-rate samples
+    t: list[np.ndarray]
+    theta: list[np.ndarray]
+    phi: list[np.ndarray]
+    temps: list[np.ndarray | None]
+    cmd: list[np.ndarray]  # (n, 3) commanded currents at the samples
+    has_T: bool
+    # fit-rate samples: concatenated over recordings
+    fit_rec: np.ndarray  # (M,) recording of each fit sample
+    fit_idx: np.ndarray  # (M,) sample index within its recording
+    fit_k0: np.ndarray  # (M,) grid step below the sample time
+    fit_w: np.ndarray  # (M,) interpolation weight of the step above
+    grid_steps: np.ndarray  # sorted unique grid steps needed (k0 and k0 + 1)
+    grid_pos0: np.ndarray  # (M,) position of k0 in grid_steps
+    grid_pos1: np.ndarray
+    meas_theta: np.ndarray  # (M,)
+    meas_phi: np.ndarray
+    meas_T: np.ndarray | None  # (M, 3)
+    ambient: float
+    ambient_sigma: float
+    ambient_source: str
+    azimuths: tuple[float, float, float]
+    sample_hz: float
+
+    def rec_slices(self) -> list[np.ndarray]:
+        return [np.flatnonzero(self.fit_rec == r) for r in range(self.n_rec)]
+
+
+def _sample_map(t_rel: np.ndarray, n_steps: int):
+    """Grid step below each sample time and the interpolation weight of the step above."""
+    k = t_rel / DT_S
+    k0 = np.clip(np.floor(k + 1e-9).astype(int), 0, n_steps - 1)
+    return k0, np.clip(k - k0, 0.0, 1.0)
+
+
+def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
+    recs = ds.recordings
+    R = len(recs)
+    durations = [r.t[-1] - r.t[0] for r in recs]
+    S = int(math.ceil(max(durations) / DT_S + 1e-9)) + 1
+    t0 = np.array([r.t[0] for r in recs])
+    F = S * DELAY_SUB
+    cmd_fine = np.zeros((R, F, 3))
+    currents = np.zeros((S, R, 3))
+    fine_t = (np.arange(F) + 0.5) * (DT_S / DELAY_SUB)
+    step_t = np.arange(S) * DT_S
+    for i, r in enumerate(recs):
+        tr = r.t - r.t[0]
+        j = np.searchsorted(tr, fine_t + 1e-9, side="right") - 1
+        ok = (j >= 0) & (fine_t <= tr[-1] + DT_S)
+        cmd_fine[i][ok] = r.currents_A[j[ok]] ** 2
+        js = np.searchsorted(tr, step_t + 1e-9, side="right") - 1
+        oks = (js >= 0) & (step_t <= tr[-1])
+        currents[oks, i] = r.currents_A[js[oks]]
+    dts = np.concatenate([np.diff(r.t) for r in recs if r.n > 1]) if any(r.n > 1 for r in recs) else np.array([DT_S])
+    sample_hz = float(ds.meta.get("sample_hz") or 1.0 / np.median(dts))
+    has_T = ds.has_temperatures
+    fit_rec, fit_idx = [], []
+    for i, r in enumerate(recs):
+        tr = r.t - r.t[0]
+        bins = np.floor(tr * fit_hz + 1e-9).astype(int)
+        first = np.flatnonzero(np.r_[True, np.diff(bins) > 0])
+        fit_rec.append(np.full(first.size, i))
+        fit_idx.append(first)
+    fit_rec = np.concatenate(fit_rec)
+    fit_idx = np.concatenate(fit_idx)
+    t_rel = np.array([recs[r].t[j] - recs[r].t[0] for r, j in zip(fit_rec, fit_idx)])
+    k0, w = _sample_map(t_rel, S)
+    steps = np.unique(np.concatenate([k0, np.minimum(k0 + 1, S)]))
+    pos0 = np.searchsorted(steps, k0)
+    pos1 = np.searchsorted(steps, np.minimum(k0 + 1, S))
+    meas_theta = np.array([recs[r].theta_deg[j] for r, j in zip(fit_rec, fit_idx)])
+    meas_phi = np.array([recs[r].phi_deg[j] for r, j in zip(fit_rec, fit_idx)])
+    meas_T = (np.array([recs[r].temperatures_C[j] for r, j in zip(fit_rec, fit_idx)])
+              if has_T else None)
+    # Ambient: meta.json, else the thermistors at the start of the recordings, else a guess.
+    if ds.meta.get("ambient_C") is not None:
+        ambient, amb_sig, src = float(ds.meta["ambient_C"]), 1.0, "meta.json"
+    elif has_T:
+        starts = []
+        for r in recs:
+            n0 = max(1, min(r.n, int(round(0.5 * sample_hz))))
+            quiet = np.all(r.currents_A[:n0] == 0)
+            if quiet:
+                starts.append(float(np.median(r.temperatures_C[:n0])))
+        if starts:
+            ambient, amb_sig, src = float(np.median(starts)), 1.0, "thermistors at rest"
+        else:
+            ambient, amb_sig, src = 25.0, 4.0, "assumed (no meta.json ambient_C, no rest temperatures)"
+    else:
+        ambient, amb_sig, src = 25.0, 4.0, "assumed (no meta.json ambient_C, no thermistors)"
+    az = tuple(float(a) for a in ds.meta.get("muscle_azimuth_deg") or (180.0, 60.0, 300.0))
+    return Prepared(
+        names=[r.name for r in recs], n_rec=R, n_steps=S, t0=t0, cmd_fine=cmd_fine,
+        currents=currents, t=[r.t for r in recs], theta=[r.theta_deg for r in recs],
+        phi=[r.phi_deg for r in recs], temps=[r.temperatures_C for r in recs],
+        cmd=[r.currents_A for r in recs], has_T=has_T, fit_rec=fit_rec, fit_idx=fit_idx,
+        fit_k0=k0, fit_w=w, grid_steps=steps, grid_pos0=pos0, grid_pos1=pos1,
+        meas_theta=meas_theta, meas_phi=meas_phi, meas_T=meas_T, ambient=ambient,
+        ambient_sigma=amb_sig, ambient_source=src, azimuths=az, sample_hz=sample_hz)
+
+
+# --------------------------------------------------------------------------------------------
+# predictions
+
+@dataclass
+class Prediction:
+    """Model output for one setting at the fit-rate samples (M,)."""
+
+    tilt_x: np.ndarray
+    tilt_y: np.ndarray
+    T: np.ndarray  # (M, 3)
+
+    @property
+    def theta(self) -> np.ndarray:
+        return np.hypot(self.tilt_x, self.tilt_y)
+
+    @property
+    def phi(self) -> np.ndarray:
+        return np.mod(np.degrees(np.arctan2(self.tilt_y, self.tilt_x)), 360.0)
+
+
+def imu_tilt(q: np.ndarray, mount: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Accelerometer tilt vector (deg) of an IMU with rotation ``mount`` (3, 3) in the head
+    frame, for poses q (..., 3); identical to ``sensors.imu_reading`` + ``tilt_from_accel``."""
+    bx, by, eps = q[..., 0], q[..., 1], q[..., 2]
+    th = np.hypot(bx, by)
+    safe = np.where(th > 1e-12, th, 1.0)
+    s = np.where(th > 1e-12, np.sin(th) / safe, 1.0)
+    # gravity (up) in the bent frame before the twist: Rot(-omega) e_z
+    g0, g1, g2 = -s * bx, -s * by, np.cos(th)
+    ce, se = np.cos(eps), np.sin(eps)
+    h0, h1 = ce * g0 + se * g1, -se * g0 + ce * g1  # R_z(-eps)
+    if mount is None:
+        a0, a1, a2 = h0, h1, g2
+    else:
+        m = mount
+        a0 = m[0, 0] * h0 + m[1, 0] * h1 + m[2, 0] * g2
+        a1 = m[0, 1] * h0 + m[1, 1] * h1 + m[2, 1] * g2
+        a2 = m[0, 2] * h0 + m[1, 2] * h1 + m[2, 2] * g2
+    horiz = np.hypot(a0, a1)
+    theta = np.degrees(np.arctan2(horiz, a2))
+    hs = np.where(horiz > 0, horiz, 1.0)
+    return np.where(horiz > 0, -theta * a0 / hs, 0.0), np.where(horiz > 0, -theta * a1 / hs, 0.0)
+
+
+class Model:
+    """Nominal params + effects -> batched predictions over a prepared dataset."""
+
+    def __init__(self, data: Prepared, base: NeckParams | None = None):
+        self.data = data
+        base = base or default_params()
+        if tuple(base.muscles.azimuths_deg) != data.azimuths:
+            base = base.replace(source="meta.json", muscles__azimuths_deg=data.azimuths)
+        self.base = base
+        self.nominal = nominal_specs(data.ambient, data.ambient_sigma)
+        # recorded time since the dataset's first sample (recordings back to back, file order):
+        # the clock of a sensor drift that builds up over use
+        dur = np.array([t[-1] - t[0] for t in data.t])
+        self.t_cum0 = np.concatenate([[0.0], np.cumsum(dur)[:-1]])
+        self.fit_tcum = np.array([self.t_cum0[r] + data.t[r][j] - data.t[r][0]
+                                  for r, j in zip(data.fit_rec, data.fit_idx)])
+        self.sim_count = 0  # rig-steps simulated, for timing reports
+        self._geo_cache: dict = {}
+
+    # -- settings -> parameters / constants -----------------------------------------------------
+    def params_of(self, setting: Mapping[str, float], source: str | None = None) -> NeckParams:
+        b = self.base
+        s = lambda k, d: float(setting.get(k, d))
+        shift = s("As_shift_C", 0.0)
+        m = b.material
+        return b.replace(
+            source=source,
+            thermal__convection_W_m2K=b.thermal.convection_W_m2K * s("h_scale", 1.0),
+            thermal__ambient_C=s("ambient_C", self.data.ambient),
+            material__As_C=m.As_C + shift, material__Af_C=m.Af_C + shift,
+            material__Ms_C=m.Ms_C + shift, material__Mf_C=m.Mf_C + shift,
+            material__C_A_Pa_per_K=m.C_A_Pa_per_K * s("CA_scale", 1.0),
+            material__C_M_Pa_per_K=m.C_M_Pa_per_K * s("CA_scale", 1.0),
+            backbone__bending_stiffness_Nm2=b.backbone.bending_stiffness_Nm2 * s("EI_scale", 1.0),
+            spring__recoverable_shear_strain=(b.spring.recoverable_shear_strain
+                                              * s("gammaL_scale", 1.0)),
+        )
+
+    @staticmethod
+    def effect_names(setting: Mapping[str, float]) -> list[str]:
+        names = []
+        for k in setting:
+            if "." in k:
+                n = k.split(".", 1)[0]
+                if n not in names:
+                    names.append(n)
+        return names
+
+    def constants_of(self, setting: Mapping[str, float]) -> np.ndarray:
+        c = constants_from_params(self.params_of(setting))
+        eff = catalogue_effects(setting, self.effect_names(setting))
+        plant_eff = {k: v for k, v in eff.items() if fx.EFFECTS[k].kind == "plant"}
+        if plant_eff:
+            c = fx.apply_to_constants(c, plant_eff)
+        return c[0]
+
+    @staticmethod
+    def plant_key(setting: Mapping[str, float]) -> tuple:
+        return tuple(sorted((k, round(float(v), 12)) for k, v in setting.items()
+                            if not (k.startswith(("offset_", "drift_", "imu_misalignment.")))))
+
+    def mount_of(self, setting: Mapping[str, float]) -> np.ndarray | None:
+        if not any(k.startswith("imu_misalignment.") for k in setting):
+            return None
+        eff = catalogue_effects(setting, ["imu_misalignment"])
+        return fx.imu_mount(eff)
+
+    def delayed_currents(self, delay: float) -> np.ndarray:
+        """Applied currents (S, R, 3): the commanded ones shifted by ``delay``, as the RMS over
+        each step (linear in the sub-step fraction, so smooth in the delay)."""
+        d = self.data
+        if delay <= 0:
+            return d.currents
+        sub = DT_S / DELAY_SUB
+        shift = delay / sub
+        n0 = int(math.floor(shift))
+        frac = shift - n0
+        F = d.cmd_fine.shape[1]
+
+        def shifted(n):
+            out = np.zeros_like(d.cmd_fine)
+            if n < F:
+                out[:, n:] = d.cmd_fine[:, :F - n]
+            return out
+
+        sq = (1 - frac) * shifted(n0) + frac * shifted(n0 + 1)
+        S = d.n_steps
+        sq = sq[:, :S * DELAY_SUB].reshape(d.n_rec, S, DELAY_SUB, 3).mean(axis=2)
+        return np.ascontiguousarray(np.sqrt(sq).transpose(1, 0, 2))
+
+    # -- batched simulation ---------------------------------------------------------------------
+    def simulate(self, settings: Sequence[Mapping[str, float]], full: bool = False):
+        """Simulate every distinct plant setting over all recordings.
+
+        Returns (keys -> column index, q (G, U*R, 3), T (G, U*R, 3)) at the grid steps needed
+        (``full``: every step 0..S)."""
+        d = self.data
+        R, S = d.n_rec, d.n_steps
+        uniq: dict[tuple, int] = {}
+        reps: list[Mapping[str, float]] = []
+        for s in settings:
+            k = self.plant_key(s)
+            if k not in uniq:
+                uniq[k] = len(reps)
+                reps.append(s)
+        U = len(reps)
+        consts = np.empty((U * R, L.N_CONST))
+        delays = np.zeros(U)
+        for u, s in enumerate(reps):
+            consts[u * R:(u + 1) * R] = self.constants_of(s)
+            delays[u] = float(s.get("actuation_delay.delay_s", 0.0))
+        cur = np.empty((S, U * R, 3))
+        cache: dict[float, np.ndarray] = {}
+        for u in range(U):
+            dl = round(delays[u], 12)
+            if dl not in cache:
+                cache[dl] = self.delayed_currents(dl)
+            cur[:, u * R:(u + 1) * R] = cache[dl]
+        x = initial_state(consts)
+        fat = consts[:, L.FATIGUE_RATE] > 0
+        if np.any(fat):
+            x[fat, L.S_FATIGUE:L.S_FATIGUE + 3] = self._fatigue_start(consts, cur, fat)
+        steps = np.arange(S + 1) if full else d.grid_steps
+        q_out = np.empty((steps.size, U * R, 3))
+        T_out = np.empty((steps.size, U * R, 3))
+        self._run(consts, x, cur, steps, q_out, T_out)
+        return uniq, q_out, T_out
+
+    def _run(self, consts, x, cur, steps, q_out, T_out, stop=None):
+        S = cur.shape[0] if stop is None else stop
+        n = x.shape[0]
+        left = np.full(n, np.inf)
+        out = np.empty((n, L.N_OUT))
+        consts = np.ascontiguousarray(consts)
+        pos = 0
+        if steps is not None and steps.size and steps[0] == 0:
+            q_out[0] = x[:, L.S_Q:L.S_Q + 3]
+            T_out[0] = x[:, L.S_T:L.S_T + 3]
+            pos = 1
+        for k in range(S):
+            step_inplace(consts, x, np.ascontiguousarray(cur[k]), DT_S, 1, left, out)
+            if steps is not None and pos < steps.size and steps[pos] == k + 1:
+                q_out[pos] = x[:, L.S_Q:L.S_Q + 3]
+                T_out[pos] = x[:, L.S_T:L.S_T + 3]
+                pos += 1
+        self.sim_count += n * S
+        return x
+
+    def _fatigue_start(self, consts, cur, fat) -> np.ndarray:
+        """Fatigue carried into each recording from the earlier ones (file order).
+
+        Pass 1 runs every recording from zero fatigue; the accumulated transformed fraction of
+        recording j is its end fatigue / rate (uncapped). Recording k then starts with
+        ``min(max_loss, rate * sum_{j<k} X_j)``."""
+        R = self.data.n_rec
+        idx = np.flatnonzero(fat)
+        c = consts[idx]
+        x = initial_state(c)
+        x = self._run(c, x, cur[:, idx], None, None, None)
+        rate = c[:, L.FATIGUE_RATE]
+        cap = c[:, L.FATIGUE_MAX]
+        X = x[:, L.S_FATIGUE:L.S_FATIGUE + 3] / rate[:, None]
+        # rigs are grouped per setting (R consecutive recordings)
+        start = np.zeros((idx.size, 3))
+        for g in range(idx.size // R):
+            sl = slice(g * R, (g + 1) * R)
+            cum = np.cumsum(X[sl], axis=0) - X[sl]
+            start[sl] = np.minimum(cap[sl, None], rate[sl, None] * cum)
+        full = np.zeros((consts.shape[0], 3))
+        full[idx] = start
+        return full[fat]
+
+    def predict(self, settings: Sequence[Mapping[str, float]]) -> list[Prediction]:
+        """Predictions at the fit-rate samples for every setting (one batched simulation)."""
+        d = self.data
+        uniq, q, T = self.simulate(settings)
+        R = d.n_rec
+        out = []
+        col = d.fit_rec
+        for s in settings:
+            u = uniq[self.plant_key(s)]
+            rig = u * R + col
+            w = d.fit_w[:, None]
+            qs = (1 - w) * q[d.grid_pos0, rig] + w * q[d.grid_pos1, rig]
+            Ts = (1 - w) * T[d.grid_pos0, rig] + w * T[d.grid_pos1, rig]
+            tx, ty = imu_tilt(qs, self.mount_of(s))
+            tx = tx + float(s.get("offset_x_deg", 0.0)) + drift_offset(s, "x", self.fit_tcum)
+            ty = ty + float(s.get("offset_y_deg", 0.0)) + drift_offset(s, "y", self.fit_tcum)
+            out.append(Prediction(tx, ty, Ts))
+        return out
+
+    def predict_full(self, settings: Sequence[Mapping[str, float]]):
+        """Full-rate predictions per recording: list over settings of lists over recordings of
+        dicts with theta, phi, T at the recording's own sample times."""
+        d = self.data
+        uniq, q, T = self.simulate(settings, full=True)
+        R = d.n_rec
+        res = []
+        for s in settings:
+            u = uniq[self.plant_key(s)]
+            mount = self.mount_of(s)
+            per = []
+            for r in range(R):
+                k0, w = _sample_map(d.t[r] - d.t[r][0], d.n_steps)
+                rig = u * R + r
+                qs = (1 - w[:, None]) * q[k0, rig] + w[:, None] * q[k0 + 1, rig]
+                Ts = (1 - w[:, None]) * T[k0, rig] + w[:, None] * T[k0 + 1, rig]
+                tx, ty = imu_tilt(qs, mount)
+                tcum = self.t_cum0[r] + d.t[r] - d.t[r][0]
+                tx = tx + float(s.get("offset_x_deg", 0.0)) + drift_offset(s, "x", tcum)
+                ty = ty + float(s.get("offset_y_deg", 0.0)) + drift_offset(s, "y", tcum)
+                per.append({"theta": np.hypot(tx, ty),
+                            "phi": np.mod(np.degrees(np.arctan2(ty, tx)), 360.0), "T": Ts})
+            res.append(per)
+        return res
+
+
+# --------------------------------------------------------------------------------------------
+# residuals
+#
+# The tilt is compared as a vector, theta (cos phi, sin phi): its error splits exactly into a
+# radial part (the theta error) and a tangential part, the phi error weighted by theta
+# (~ theta * dphi in radians, in degrees of tilt) -- well defined and smooth through theta = 0,
+# where phi alone is noise. Fits use the Cartesian components of the error (smooth); reports
+# use the theta / weighted-phi split (same total).
+
+def wrap180(a):
+    return (np.asarray(a) + 180.0) % 360.0 - 180.0
+
+
+def tilt_vec(theta, phi):
+    r = np.radians(phi)
+    return theta * np.cos(r), theta * np.sin(r)
+
+
+def residual_parts(data_theta, data_phi, data_T, pred_theta, pred_phi, pred_T):
+    """(e_theta, e_phi, e_T), measured - model: e_phi is the tangential tilt error (the phi
+    error weighted by theta, deg of tilt, signed like the phi error); e_T (n, 3) or None."""
+    mx, my = tilt_vec(data_theta, data_phi)
+    px, py = tilt_vec(pred_theta, pred_phi)
+    e_th = data_theta - pred_theta
+    d2 = (mx - px) ** 2 + (my - py) ** 2
+    e_ph = np.sign(wrap180(data_phi - pred_phi)) * np.sqrt(np.maximum(d2 - e_th ** 2, 0.0))
+    e_T = None if data_T is None else data_T - pred_T
+    return e_th, e_ph, e_T
+
+
+def residual_vector(data: Prepared, pred: Prediction, mask: np.ndarray | None = None) -> np.ndarray:
+    """Scaled residuals of the fit-rate samples (``mask`` selects samples): the tilt-vector
+    error (x, y) and, when recorded, the temperatures / (SIGMA_T sqrt 3)."""
+    mx, my = tilt_vec(data.meas_theta, data.meas_phi)
+    parts = [(mx - pred.tilt_x) / SIGMA_THETA, (my - pred.tilt_y) / SIGMA_THETA]
+    if data.meas_T is not None:
+        e_T = data.meas_T - pred.T
+        parts += [e_T[:, k] / (SIGMA_T * math.sqrt(3)) for k in range(3)]
+    r = np.stack(parts, axis=1)
+    if mask is not None:
+        r = r[mask]
+    return r.ravel()
+
+
+def gap_of(data: Prepared, pred: Prediction, mask: np.ndarray) -> dict[str, float]:
+    """Gap on the masked samples: RMSE of theta and of weighted phi (deg), and both pooled."""
+    e_th, e_ph, _ = residual_parts(data.meas_theta[mask], data.meas_phi[mask], None,
+                                   pred.theta[mask], pred.phi[mask], None)
+    th = float(np.sqrt(np.mean(e_th ** 2))) if e_th.size else math.nan
+    ph = float(np.sqrt(np.mean(e_ph ** 2))) if e_ph.size else math.nan
+    return {"gap": math.sqrt(0.5 * (th ** 2 + ph ** 2)), "theta_rmse": th, "phi_rmse": ph}
+
+
+def phi_error_deg(data_theta, data_phi, pred_theta, pred_phi, min_theta: float = PHI_REF_DEG):
+    """Plain phi error (deg) where both measured and model theta exceed ``min_theta``."""
+    sel = (data_theta > min_theta) & (pred_theta > min_theta)
+    return wrap180(data_phi[sel] - pred_phi[sel])

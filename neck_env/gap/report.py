@@ -1,0 +1,350 @@
+"""The diagnosis' outputs: REPORT.json (the contract of design.md 2.3 plus detail), a readable
+text report, plots, and the corrected model (parameter JSON + effects JSON)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import effects as fx
+from . import diagnose as D
+from .model import catalogue_effects, clip_to_catalogue
+
+REPORT_VERSION = 1
+
+
+def _clean(x: Any) -> Any:
+    """JSON-safe: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _clean(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        f = float(x)
+        return f if math.isfinite(f) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def _r(x: float, n: int = 4) -> float | None:
+    """Rounded for the report; None (JSON null) where a statistic is undefined (NaN)."""
+    x = float(x)
+    return None if math.isnan(x) else float(round(x, n))
+
+
+def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> dict:
+    data = dg.data
+    nom_cmp = D.gap_stats(data, dg.nominal.pred, D.sample_masks(data, dg.hold_rec)[1])
+    effects = []
+    for c in dg.singles:
+        s = dg.single_cmp[c.name]
+        _, hold = D.sample_masks(data, dg.hold_rec)
+        g = D.gap_stats(data, c.pred, hold)
+        effects.append({
+            "name": c.name,
+            "params": {k: _r(v, 6) for k, v in catalogue_effects(c.values, [c.name])[c.name].items()},
+            "heldout_gap_before": _r(s["gap_before"]),
+            "heldout_gap_after": _r(s["gap_after"]),
+            "heldout_reduction": _r(s["reduction"]),
+            "heldout_t": _r(s["t"], 2),
+            "heldout_F": _r(s["F"], 3), "heldout_F_crit": _r(s["F_crit"], 3),
+            "heldout_n_eff": _r(s["n_eff"], 1),
+            "heldout_blocks_improved": f"{s['blocks_improved']}/{s['blocks']}",
+            "significant": bool(D.significant(s)),
+            "heldout_theta_rmse_after": _r(g["theta_rmse"]),
+            "heldout_phi_rmse_after": _r(g["phi_rmse"]),
+            "signature": fx.EFFECTS[c.name].signature,
+        })
+    pairs = []
+    for p in dg.pairs:
+        s = dg.pair_cmp[p.name]
+        pairs.append({
+            "name": p.name, "effects": list(p.effects),
+            "params": {n: {k: _r(v, 6) for k, v in vals.items()}
+                       for n, vals in catalogue_effects(p.values, p.effects).items()},
+            "heldout_gap_before": _r(s["vs_nominal"]["gap_before"]),
+            "heldout_gap_after": _r(s["gap_after"]),
+            "heldout_gap_best_single": _r(s["gap_before"]),
+            "heldout_reduction_vs_best_single": _r(s["reduction"]),
+            "heldout_t_vs_best_single": _r(s["t"], 2),
+            "significant": bool(s["accepted"]),
+        })
+    loc = [{"signal": it["signal"], "phase": it["phase"], "muscle": it["muscle"],
+            "share": _r(it["share"]), "time_fraction": _r(it["time_fraction"]),
+            "rms": _r(it["rms"])} for it in dg.localization["items"]]
+    loc_rem = [{"signal": it["signal"], "phase": it["phase"], "muscle": it["muscle"],
+                "share": _r(it["share"]), "time_fraction": _r(it["time_fraction"]),
+                "rms": _r(it["rms"])} for it in dg.localization_remaining["items"]]
+    corrected_effects = catalogue_effects(dg.final.values, dg.verdict)
+    fc = dg.final_cmp
+    report = {
+        "tool": "neck_env.gap", "report_version": REPORT_VERSION,
+        "dataset": str(dataset_path) if dataset_path is not None else None,
+        "recordings": data.names,
+        "heldout_recordings": [n for n, h in zip(data.names, dg.hold_rec) if h],
+        "split": dg.split_note,
+        "verdict": list(dg.verdict),
+        "unexplained": bool(dg.unexplained),
+        "unexplained_reasons": list(dg.reasons),
+        "effects": effects,
+        "pairs": pairs,
+        "localization": loc,
+        "localization_summary": {
+            "by_signal": {k: _r(v) for k, v in dg.localization["by_signal"].items()},
+            "by_phase": {k: _r(v) for k, v in dg.localization["by_phase"].items()},
+            "phase_time_fraction": {k: _r(v) for k, v in dg.localization["phase_time_fraction"].items()},
+        },
+        "localization_pattern": dg.localization["pattern"],
+        "localization_remaining_pattern": dg.localization_remaining["pattern"],
+        "localization_by_current": [{"signal": d["signal"], "current_A": d["current_A"],
+                                     "share": _r(d["share"])} for d in dg.localization["by_current"]],
+        "localization_remaining": loc_rem,
+        "nominal": {"heldout_gap": _r(nom_cmp["gap"]), "heldout_theta_rmse": _r(nom_cmp["theta_rmse"]),
+                    "heldout_phi_rmse": _r(nom_cmp["phi_rmse"]),
+                    "params": {k: _r(v, 6) for k, v in dg.nominal.values.items()}},
+        "corrected": {"effects": {n: {k: _r(v, 6) for k, v in vals.items()}
+                                  for n, vals in corrected_effects.items()},
+                      "heldout_gap": _r(fc["gap_after"]),
+                      "heldout_reduction": _r(fc["reduction"]),
+                      "systematic_heldout_residual_deg": _r(fc["systematic_rms"]),
+                      "systematic_tolerance_deg": _r(fc["systematic_tol"]),
+                      "rest_offset_spread_deg": _r(fc["rest_spread"]),
+                      "rest_offset_drift_deg": _r(fc["rest_drift"]),
+                      "rest_offset_drift_r2": _r(fc["rest_drift_r2"]),
+                      "params": {k: _r(v, 6) for k, v in dg.final.values.items()}},
+        "calibration": dg.calibration,
+        "ambient": {"value_C": data.ambient, "source": data.ambient_source},
+        "temperatures_used": bool(data.has_T),
+        "method": {
+            "gap": "RMSE over held-out samples of theta (deg) and phi weighted by "
+                   "min(theta_meas, theta_model) / 5 deg (deg), pooled: sqrt((rmse_theta^2 + "
+                   "rmse_phi^2) / 2)",
+            "significance": f"held-out F test of mean squared tilt error, effective sample size "
+                            f"from the residual autocorrelation, level {D.ALPHA}; and reduction "
+                            f">= {D.MIN_REL:.0%} and >= {D.MIN_ABS_DEG} deg; and paired t over "
+                            f"{D.BLOCK_S:g} s blocks > {D.T_CRIT}",
+            "unexplained": f"systematic (3 s smoothed) held-out residual of the final model > "
+                           f"max({D.UNEXPLAINED_ABS_DEG} deg, {D.UNEXPLAINED_REL:.0%} of the RMS "
+                           f"measured tilt), or the tilt read at rest changing between recordings "
+                           f"by > {D.UNEXPLAINED_REST_DEG} deg RMS (a steady drift, R^2 > {D.DRIFT_R2}, is "
+                           f"fitted as a nuisance by every candidate so that no effect is blamed "
+                           f"for its mean)",
+            "phases": "heating: a muscle commanded on; cooling: all off within 20 s of the last "
+                      "switch-off; rest: otherwise",
+        },
+        "timing_s": {k: _r(v, 2) for k, v in dg.timing.items()},
+        "simulated_rig_steps": int(dg.model.sim_count),
+    }
+    return _clean(report)
+
+
+def text_report(rep: dict) -> str:
+    L = []
+    L.append(f"Sim-to-real gap diagnosis of {rep['dataset']}")
+    L.append(f"  {len(rep['recordings'])} recordings; held out: {', '.join(rep['heldout_recordings']) or 'last 40 %'}"
+             f"; ambient {rep['ambient']['value_C']:.1f} C ({rep['ambient']['source']}); "
+             f"temperatures {'used' if rep['temperatures_used'] else 'not recorded'}")
+    n = rep["nominal"]
+    L.append("")
+    L.append(f"Nominal model refitted: held-out gap {n['heldout_gap']:.3f} deg "
+             f"(theta RMSE {n['heldout_theta_rmse']:.3f}, weighted phi RMSE {n['heldout_phi_rmse']:.3f})")
+    cal = rep["calibration"]["params"]
+    for k, v in cal.items():
+        L.append(f"    {k:16s} {v['value']:10.4g} +- {v['std']:.2g}"
+                 f"{'  (at bound)' if v['at_bound'] else ''}")
+    weak = rep["calibration"]["weak_directions"]
+    if weak:
+        L.append("    weakly identifiable: " + "; ".join(
+            " ".join(f"{c:+.2f} {k}" for k, c in w["direction"].items()) for w in weak))
+    L.append("")
+    L.append("Where the gap lies (share of the nominal residual energy):")
+    ls = rep["localization_summary"]
+    L.append("    by signal: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in ls["by_signal"].items()))
+    L.append("    by phase:  " + ", ".join(f"{k} {100 * v:.0f} % (of time {100 * ls['phase_time_fraction'].get(k, 0):.0f} %)"
+                                          for k, v in ls["by_phase"].items()))
+    pt = rep["localization_pattern"]
+    L.append(f"    pattern: {pt['dominant_signal']}; phase: {pt['concentrated_in_phase']}; muscle: "
+             f"{pt['concentrated_in_muscle']}; trend across recordings {pt['trend_across_recordings']:+.2f}")
+    for it in rep["localization"][:6]:
+        m = f"muscle {it['muscle']}" if it["muscle"] else "no muscle"
+        L.append(f"    {100 * it['share']:5.1f} %  {it['signal']:11s} {it['phase']:8s} {m:10s} "
+                 f"(RMS {it['rms']:.2f}, {100 * it['time_fraction']:.0f} % of the time)")
+    L.append("")
+    L.append("Effects ranked by held-out gap (nominal + effect refitted on the fitting recordings):")
+    for e in rep["effects"]:
+        ps = ", ".join(f"{k}={v:.3g}" for k, v in e["params"].items())
+        L.append(f"  {'*' if e['significant'] else ' '} {e['name']:25s} {e['heldout_gap_before']:.3f} -> "
+                 f"{e['heldout_gap_after']:.3f} deg ({100 * e['heldout_reduction']:+5.1f} %, t {e['heldout_t']:.1f})  {ps}")
+    for p in rep["pairs"]:
+        L.append(f"  {'*' if p['significant'] else ' '} pair {p['name']:30s} -> {p['heldout_gap_after']:.3f} deg "
+                 f"({100 * p['heldout_reduction_vs_best_single']:+.1f} % vs its best single, t {p['heldout_t_vs_best_single']:.1f})")
+    L.append("")
+    v = rep["verdict"]
+    L.append(f"Verdict: {', '.join(v) if v else 'no catalogued effect is significant'}")
+    c = rep["corrected"]
+    if v:
+        for name, ps in c["effects"].items():
+            L.append(f"    {name}: " + ", ".join(f"{k} = {x:.4g}" for k, x in ps.items()))
+        L.append(f"    held-out gap {n['heldout_gap']:.3f} -> {c['heldout_gap']:.3f} deg "
+                 f"({100 * c['heldout_reduction']:.0f} % smaller)")
+    if rep["unexplained"]:
+        L.append("UNEXPLAINED: a large residual remains that no catalogued effect explains:")
+        for r in rep["unexplained_reasons"]:
+            L.append(f"    - {r}")
+        pr = rep["localization_remaining_pattern"]
+        L.append(f"    remaining residual: {100 * pr['tilt_share']:.0f} % in the tilt (theta/phi); "
+                 f"phase: {pr['concentrated_in_phase']}; trend across recordings "
+                 f"{pr['trend_across_recordings']:+.2f}")
+        for it in rep["localization_remaining"][:3]:
+            m = f"muscle {it['muscle']}" if it["muscle"] else "no muscle"
+            L.append(f"    remaining: {100 * it['share']:5.1f} % {it['signal']} {it['phase']} {m}")
+    else:
+        L.append(f"Remaining systematic held-out residual {c['systematic_heldout_residual_deg']:.2f} deg: "
+                 "explained")
+    if rep.get("outputs"):
+        L.append("")
+        L.append("Wrote: " + ", ".join(rep["outputs"].values()))
+    return "\n".join(L)
+
+
+# -- plots ----------------------------------------------------------------------------------------
+
+def plots(dg: "D.Diagnosis", stem: Path) -> dict[str, Path]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from . import localize
+
+    data = dg.data
+    out: dict[str, Path] = {}
+    res = D.full_residuals(data, dg.full["nominal_heldout"])
+    rem = D.full_residuals(data, dg.full["corrected"])
+
+    # 1. residual vs time, all recordings end to end, heating shaded, held-out marked
+    fig, axes = plt.subplots(2, 1, figsize=(12, 5.5), sharex=True)
+    off = 0.0
+    for r, (a, b) in enumerate(zip(res, rem)):
+        t = a["t"] + off
+        ph, _, _ = localize.phases(a["t"], a["cmd"])
+        for ax in axes:
+            heat = ph == 0
+            ax.fill_between(t, 0, 1, where=heat, transform=ax.get_xaxis_transform(),
+                            color="orange", alpha=0.15, lw=0)
+            ax.axvline(off, color="0.7", lw=0.5)
+        axes[0].plot(t, a["e_theta"], "k", lw=0.7, label="nominal refit" if r == 0 else None)
+        axes[1].plot(t, a["e_phi"], "k", lw=0.7)
+        if dg.verdict:
+            axes[0].plot(t, b["e_theta"], "tab:green", lw=0.7, label="corrected" if r == 0 else None)
+            axes[1].plot(t, b["e_phi"], "tab:green", lw=0.7)
+        if dg.hold_rec[r]:
+            axes[0].text(off + 1, 1.0, "held out", transform=axes[0].get_xaxis_transform(),
+                         fontsize=7, va="top", color="tab:blue")
+        off = t[-1] + 2.0
+    axes[0].set_ylabel("theta residual (deg)")
+    axes[1].set_ylabel("phi residual, weighted (deg)")
+    axes[1].set_xlabel("time, recordings end to end (s); orange: heating")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[0].set_title("Residual (measured - model) vs time")
+    fig.tight_layout()
+    p = stem.with_name(stem.name + "_residual_time.png")
+    fig.savefig(p, dpi=90)
+    plt.close(fig)
+    out["residual_time"] = p
+
+    # 2. residual energy by phase and signal
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    sigs = ["theta", "phi", "temperature"]
+    colors = {"theta": "tab:blue", "phi": "tab:orange", "temperature": "tab:red"}
+    bottoms = np.zeros(3)
+    for sgn in sigs:
+        vals = np.array([sum(it["share"] for it in dg.localization["items"]
+                             if it["signal"] == sgn and it["phase"] == ph) for ph in localize.PHASES])
+        if vals.sum() == 0:
+            continue
+        ax.bar(localize.PHASES, vals, bottom=bottoms, color=colors[sgn], label=sgn)
+        bottoms += vals
+    tf = dg.localization["phase_time_fraction"]
+    ax.plot(localize.PHASES, [tf[p] for p in localize.PHASES], "kD", label="share of time")
+    ax.set_ylabel("share of residual energy (nominal refit)")
+    ax.set_title("Where the gap lies")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    p = stem.with_name(stem.name + "_localization.png")
+    fig.savefig(p, dpi=90)
+    plt.close(fig)
+    out["localization"] = p
+
+    # 3. measured vs nominal vs corrected theta/phi on some recordings (held-out ones first)
+    order = list(np.flatnonzero(dg.hold_rec)) + list(np.flatnonzero(~dg.hold_rec))
+    show = order[:6]
+    fig, axes = plt.subplots(2, len(show), figsize=(3.2 * len(show), 5), squeeze=False)
+    for col, r in enumerate(show):
+        t = data.t[r] - data.t[r][0]
+        nom = dg.full["nominal_heldout"][r]
+        cor = dg.full["corrected"][r]
+        axes[0, col].plot(t, data.theta[r], "k", lw=1, label="measured")
+        axes[0, col].plot(t, nom["theta"], "tab:blue", lw=1, label="nominal")
+        axes[0, col].plot(t, cor["theta"], "tab:green", lw=1, ls="--", label="corrected")
+        bent = data.theta[r] > 2.0
+        axes[1, col].plot(t[bent], data.phi[r][bent], "k.", ms=1)
+        nb = nom["theta"] > 2.0
+        axes[1, col].plot(t[nb], nom["phi"][nb], "b.", ms=1)
+        cb = cor["theta"] > 2.0
+        axes[1, col].plot(t[cb], cor["phi"][cb], "g.", ms=1)
+        axes[0, col].set_title(f"{data.names[r]}{' (held out)' if dg.hold_rec[r] else ''}", fontsize=8)
+        axes[1, col].set_xlabel("t (s)")
+    axes[0, 0].set_ylabel("theta (deg)")
+    axes[1, 0].set_ylabel("phi (deg), where theta > 2")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle("measured (black) vs nominal refit (blue) vs corrected (green)", fontsize=9)
+    fig.tight_layout()
+    p = stem.with_name(stem.name + "_fit.png")
+    fig.savefig(p, dpi=90)
+    plt.close(fig)
+    out["fit"] = p
+    return out
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_outputs(dg: "D.Diagnosis", json_path: str | Path, dataset_path=None,
+                  make_plots: bool = True) -> dict:
+    """Write plots, corrected model files and (last) the JSON report; returns the report."""
+    json_path = Path(json_path)
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    stem = json_path.with_suffix("")
+    outputs: dict[str, str] = {}
+    if make_plots:
+        for k, p in plots(dg, stem).items():
+            outputs[f"plot_{k}"] = str(p)
+    params = dg.model.params_of(dg.final.values, source=f"fitted: neck_env.gap to {dataset_path}")
+    p_path = stem.with_name(stem.name + "_params.json")
+    tmp = p_path.with_name(p_path.name + ".tmp")
+    params.save(tmp)
+    os.replace(tmp, p_path)
+    outputs["params"] = str(p_path)
+    eff = clip_to_catalogue(catalogue_effects(dg.final.values, dg.verdict))
+    e_path = stem.with_name(stem.name + "_effects.json")
+    _atomic_write(e_path, json.dumps(eff, indent=2) + "\n")
+    outputs["effects"] = str(e_path)
+    rep = build_report(dg, dataset_path)
+    rep["outputs"] = outputs
+    rep["usage"] = ("gymnasium.make('NeckTrack-v0', params=REPORT_params.json path, "
+                    "effects=json.load(open(REPORT_effects.json)))")
+    _atomic_write(json_path, json.dumps(rep, indent=2) + "\n")
+    return rep

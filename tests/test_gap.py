@@ -1,0 +1,193 @@
+"""Sim-to-real gap diagnosis (``neck_env.gap``): the contract of design.md 2.3, the model it
+fits against the simulator itself, the paper's phi offset, a small faithful blind evaluation
+(the full one is ``benchmarks/gap_blind.py``) and bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import neck_env  # noqa: F401  (registers NeckTrack-v0)
+from neck_env import effects as fx
+from neck_env.gap.cli import main as gap_main
+from neck_env.gap.synthetic import generate
+from neck_env.params import default_params
+from neck_env.physics.plant import constants_from_params, simulate
+from neck_env.recording import read_dataset, write_meta, write_recording
+
+pytestmark = pytest.mark.slow
+
+REPORT_KEYS = {"verdict", "effects", "localization", "unexplained"}
+
+
+def _diagnose(ds: Path, tmp_path: Path, name: str = "report") -> dict:
+    out = tmp_path / f"{name}.json"
+    rc = gap_main([str(ds), "--json", str(out), "--quiet", "--no-plots"])
+    assert rc == 0
+    return json.loads(out.read_text())
+
+
+def _check_contract(rep: dict) -> None:
+    assert REPORT_KEYS <= set(rep)
+    assert isinstance(rep["verdict"], list) and isinstance(rep["unexplained"], bool)
+    assert {e["name"] for e in rep["effects"]} == set(fx.CATALOGUE)
+    gaps = [e["heldout_gap_after"] for e in rep["effects"]]
+    assert gaps == sorted(gaps), "effects must be ranked best first"
+    for e in rep["effects"]:
+        assert {"name", "params", "heldout_gap_before", "heldout_gap_after"} <= set(e)
+        assert set(e["params"]) == set(fx.EFFECTS[e["name"]].params)
+    shares = [loc["share"] for loc in rep["localization"]]
+    assert rep["localization"] and all(0 <= s <= 1 for s in shares) and sum(shares) <= 1 + 1e-3  # shares are rounded to 4 decimals
+    for loc in rep["localization"]:
+        assert loc["signal"] in ("theta", "phi", "temperature")
+        assert loc["phase"] in ("heating", "cooling", "rest")
+
+
+def test_noise_free_nominal_data_is_matched_exactly(tmp_path):
+    """Recordings made by the calibrated simulator itself (no noise, no effect): the nominal
+    refit leaves no gap and nothing is blamed. Checks that the diagnosis fits the project's own
+    plant, not a private copy of it."""
+    consts = constants_from_params(default_params())
+    dt = 0.02
+    ds = tmp_path / "nominal"
+    plan = [(0, 6.0), (1, 7.0), (2, 5.0), (0, 8.0), (1, 4.5), (2, 6.5)]
+    for k, (muscle, amps) in enumerate(plan):
+        steps = int(20.0 / dt)
+        cur = np.zeros((steps, 1, 3))
+        t = (np.arange(steps) + 1) * dt
+        cur[(t > 1.0) & (t <= 6.0), 0, muscle] = amps
+        traj, _ = simulate(consts, cur, dt)
+        # row j holds the current commanded during (t_j, t_j + dt]: shift by one sample
+        t_rows = np.concatenate([[0.0], t[:-1]])
+        write_recording(ds / f"rec_{k + 1:02d}.csv", {
+            "t": t_rows, "i1": cur[:, 0, 0], "i2": cur[:, 0, 1], "i3": cur[:, 0, 2],
+            "theta_deg": np.concatenate([[0.0], traj.theta_deg[:-1, 0]]),
+            "phi_deg": np.concatenate([[0.0], traj.phi_deg[:-1, 0]]) % 360.0,
+            "T1": np.concatenate([[25.0], traj.T_C[:-1, 0, 0]]),
+            "T2": np.concatenate([[25.0], traj.T_C[:-1, 0, 1]]),
+            "T3": np.concatenate([[25.0], traj.T_C[:-1, 0, 2]]),
+        })
+    write_meta(ds, {"ambient_C": default_params().thermal.ambient_C, "sample_hz": 50})
+    rep = _diagnose(ds, tmp_path)
+    _check_contract(rep)
+    assert rep["verdict"] == [] and rep["unexplained"] is False
+    assert rep["effects"][0]["heldout_gap_before"] < 0.05  # degrees, on held-out recordings
+
+
+def test_paper_phi_offset_is_imu_misalignment(tmp_path):
+    """The paper's own gap: phi settles off 180/60/300 deg, which the authors blame on the IMU
+    mount. Its experiments (5 s pulses at 4-5 A and 6-8 A, no thermistors) on a rig whose IMU is
+    rotated 8 deg about the head axis: the tool names imu_misalignment, recovers the yaw, and
+    the corrected model it exports loads into NeckTrack-v0."""
+    ds = tmp_path / "paper"
+    generate(ds, {"imu_misalignment": {"yaw_deg": 8.0, "tilt_deg": 1.0, "tilt_dir_deg": 90.0}},
+             seed=5, protocol="paper", temperatures=False)
+    rep = _diagnose(ds, tmp_path)
+    _check_contract(rep)
+    assert rep["verdict"] == ["imu_misalignment"] and rep["unexplained"] is False
+    best = rep["effects"][0]
+    assert best["name"] == "imu_misalignment"
+    assert abs(best["params"]["yaw_deg"] - 8.0) < 1.0
+    assert best["heldout_gap_after"] < 0.25 * best["heldout_gap_before"]
+    # the exported corrected model drives the env
+    params_path = rep["outputs"]["params"]
+    effects = json.loads(Path(rep["outputs"]["effects"]).read_text())
+    assert set(effects) == {"imu_misalignment"}
+    env = gym.make("NeckTrack-v0", params=params_path, effects=effects)
+    obs, _ = env.reset(seed=0)
+    obs, *_ = env.step(np.array([6.0, 0.0, 0.0], np.float32))
+    assert np.all(np.isfinite(obs))
+    env.close()
+
+
+# A small faithful version of benchmarks/gap_blind.py: the same generator, random magnitudes in
+# the catalogue ranges, diagnosis through the CLI seeing only the folder. One effect from each
+# kind of signature (timing, heat flow, across-recording trend, backbone mechanics), an
+# effect-free rig and the out-of-catalogue gyro drift.
+BLIND = [
+    ([], 1000),
+    (["actuation_delay"], 1006),
+    (["thermal_coupling"], 1007),
+    (["sma_fatigue"], 1009),
+    (["backbone_friction"], 1010),
+    (["gyro_bias_drift"], 1013),
+]
+
+
+@pytest.mark.parametrize("effects, seed", BLIND, ids=[e[0] if e else "none" for e, _ in BLIND])
+def test_blind_small(tmp_path, effects, seed):
+    ds = tmp_path / "ds"
+    truth = generate(ds, effects, seed=seed)
+    assert not (ds / "truth.json").exists() and Path(str(ds) + ".truth.json").exists()
+    rep = _diagnose(ds, tmp_path)
+    _check_contract(rep)
+    if not effects:
+        assert rep["verdict"] == [] and rep["unexplained"] is False
+    elif effects == ["gyro_bias_drift"]:
+        # not in the catalogue: unexplained, and the residual left sits in the tilt signals
+        assert rep["unexplained"] is True
+        assert "gyro_bias_drift" not in [e["name"] for e in rep["effects"]]
+        rem = rep["localization_remaining"]
+        tilt = sum(loc["share"] for loc in rem if loc["signal"] in ("theta", "phi"))
+        assert tilt > 0.5
+    else:
+        name = effects[0]
+        assert rep["verdict"] == [name]
+        best = rep["effects"][0]
+        assert best["name"] == name
+        # the held-out gap shrinks by at least 60 % once the effect is added
+        assert best["heldout_gap_after"] < 0.4 * best["heldout_gap_before"]
+        assert set(truth["effects"]) == {name}
+
+
+# -- bad input: a clear error naming file and line, nothing written --------------------------
+
+GOOD = "t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.02,5,0,0,0.1,180\n0.04,5,0,0,0.2,180\n"
+
+
+@pytest.mark.parametrize("files, fragment", [
+    ({}, "no *.csv recordings in this folder"),
+    ({"rec_01.csv": GOOD, "rec_02.csv": "t,i1,i2,theta_deg,phi_deg\n0,0,0,0,0\n"},
+     "rec_02.csv, line 1: missing required column(s) i3"),
+    ({"rec_01.csv": GOOD.replace("0.04,", "0.02,")}, "rec_01.csv, line 4"),
+    ({"rec_01.csv": GOOD.replace("0.1,180", "nan,180")}, "rec_01.csv, line 3"),
+    ({"rec_01.csv": GOOD, "rec_02.csv": ""}, "rec_02.csv"),
+])
+def test_bad_input_names_file_and_line_and_writes_nothing(tmp_path, capsys, files, fragment):
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    for name, text in files.items():
+        (ds / name).write_text(text)
+    out = tmp_path / "out" / "report.json"
+    rc = gap_main([str(ds), "--json", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert fragment in err, err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_missing_folder_and_module_entry_point(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "neck_env.gap", str(tmp_path / "nope"),
+                           "--json", str(tmp_path / "r.json")], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "nope" in proc.stderr
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_synthetic_generator_is_seeded(tmp_path):
+    a = generate(tmp_path / "a", ["head_payload"], seed=3)
+    b = generate(tmp_path / "b", ["head_payload"], seed=3)
+    assert a["effects"] == b["effects"]
+    ra, rb = read_dataset(tmp_path / "a"), read_dataset(tmp_path / "b")
+    assert len(ra) == len(rb) == 15
+    for x, y in zip(ra, rb):
+        np.testing.assert_array_equal(x.theta_deg, y.theta_deg)
+    p = fx.EFFECTS["head_payload"].params["mass_kg"]
+    lo, hi = p.low, p.high
+    assert lo <= a["effects"]["head_payload"]["mass_kg"] <= hi
