@@ -438,7 +438,10 @@ def test_imu_is_configured_and_raw_values_reach_telemetry(start_rig):
 
     h.set_imu(1234, -2345, 7000, -32768, 32767, -5)
     h.set_imu_temp(-1000)
-    st = _wait_status(link, lambda s: s.accel != (0, 0, 8192), what="new IMU values")
+    # IMU and IMU_TEMP are two harness commands: a read between them is legitimate, so wait
+    # for both to have reached the firmware
+    st = _wait_status(link, lambda s: s.accel != (0, 0, 8192) and s.imu_temp != -3920,
+                      what="new IMU values")
     assert st.accel == (1234, -2345, 7000)
     assert st.gyro == (-32768, 32767, -5)
     assert st.imu_temp == -1000
