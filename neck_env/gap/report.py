@@ -60,6 +60,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_F": _r(s["F"], 3), "heldout_F_crit": _r(s["F_crit"], 3),
             "heldout_n_eff": _r(s["n_eff"], 1),
             "heldout_blocks_improved": f"{s['blocks_improved']}/{s['blocks']}",
+            "heldout_recordings_improved": f"{s['recordings_improved']}/{s['recordings']}",
             "significant": bool(D.significant(s)),
             "heldout_theta_rmse_after": _r(g["theta_rmse"]),
             "heldout_phi_rmse_after": _r(g["phi_rmse"]),
@@ -132,7 +133,8 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "significance": f"held-out F test of mean squared tilt error, effective sample size "
                             f"from the residual autocorrelation, level {D.ALPHA}; and reduction "
                             f">= {D.MIN_REL:.0%} and >= {D.MIN_ABS_DEG} deg; and paired t over "
-                            f"{D.BLOCK_S:g} s blocks > {D.T_CRIT}",
+                            f"{D.BLOCK_S:g} s blocks > {D.T_CRIT} or every held-out recording "
+                            f"improved (at least {D.MIN_REC_CONSISTENT})",
             "unexplained": f"systematic (3 s smoothed) held-out residual of the final model > "
                            f"max({D.UNEXPLAINED_ABS_DEG} deg, {D.UNEXPLAINED_REL:.0%} of the RMS "
                            f"measured tilt), or the tilt read at rest changing between recordings "
