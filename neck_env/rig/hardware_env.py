@@ -1,0 +1,465 @@
+"""``HardwareNeckEnv``: the NeckTrack task on the physical neck, over the firmware's serial link.
+
+A policy or controller written against ``NeckTrack-v0`` runs here unchanged: same action and
+observation spaces, the observation built by the same code (``neck_env.observation``: the
+IMU's complementary filter, ``fill_observation``), the same targets (``neck_env.targets``),
+budget and over-temperature rules. What differs is where the numbers come from (table below),
+and that time is real: each ``step`` lasts ``dt`` of wall time.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from ..envs.core import (DEFAULT_BUDGET_J, DEFAULT_CUTOFF_C, DEFAULT_DT_S, DEFAULT_EPISODE_S,
+                         DEFAULT_SUPPLY_A, MAX_CURRENT_A, TaskConfig, resolve_params,
+                         validate_action)
+from ..observation import (FILTER_TAU_S, fill_observation, fuse_tilt, observation_space,
+                           tilt_angles_deg, tilt_from_accel)
+from ..params import NeckParams
+from ..recording import RecordingWriter, write_meta
+from ..targets import TargetSpec, sample_targets, target_at, tracking_error_deg
+from . import protocol as P
+from .link import RigError, RigLink, RigLinkLost, RigRefused, RigTimeout
+from .thermal_estimate import ThermalEstimate
+
+__all__ = ["HardwareNeckEnv", "RECORD_COLUMNS"]
+
+#: Columns of a rig recording: the contract of design.md 2.2 first, then what the rig adds.
+RECORD_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg",
+                  "T1_est", "T2_est", "T3_est", "ax", "ay", "az", "gx", "gy", "gz",
+                  "relays", "faults", "target_theta_deg", "target_phi_deg", "t_mcu_ms")
+THERMISTOR_COLUMNS = ("T1", "T2", "T3")
+TELEMETRY_TIMEOUT_S = 0.3  # no telemetry for this long while running: the link is dead
+FIRST_SAMPLE_TIMEOUT_S = 1.0
+
+
+class HardwareNeckEnv(gym.Env):
+    """NeckTrack on the physical neck (Arduino UNO firmware, ``firmware/``).
+
+    ## Action space (as ``NeckTrack-v0``)
+
+    | action_mode | space | what the rig does |
+    |---|---|---|
+    | `"current"` (default) | `Box(0, 8, (3,), float32)`, A | per-muscle duty `(I / I_s)^2` of the supply current `I_s` (time-proportional switching in the firmware, 1 s window): the same mean Joule heat as a steady `I`. The firmware caps duty at 80 %, so the largest steady-equivalent current is `0.89 I_s` |
+    | `"relay"` | `MultiBinary(3)` | relay k on: `I_s` flows (firmware caps: 10 s continuous on-time, sustained-duty limiter) |
+
+    Invalid actions raise `ValueError` exactly as in simulation, after the relays are commanded
+    off.
+
+    ## Observation space (as ``NeckTrack-v0``, built by ``neck_env.observation``)
+
+    | index | observation | on the rig |
+    |---|---|---|
+    | 0, 1 | head tilt vector, deg | MPU6050 accelerometer + gyro at the telemetry rate (100 Hz), the simulator's complementary filter |
+    | 2-4 | spring temperatures, deg C | NTC thermistors where fitted, else the host's estimate from the commanded currents (``ThermalEstimate``) |
+    | 5, 6 | target tilt vector, deg | ``neck_env.targets``, seeded by ``reset(seed=...)`` |
+    | 7 | energy budget left, fraction | host accounting: commanded on-time x `I_s^2 R(xi)` with the model's resistance |
+
+    ## Rewards
+
+    `-e`, `e` the distance (deg) between the **measured** tilt vector and the target's (the rig
+    has no ground truth; in simulation the true tilt is used).
+
+    ## Starting state
+
+    `reset` switches everything off and, unless `cooldown_s = 0`, waits (relays off) until
+    the springs are within `cooldown_margin_C` of ambient (thermistors, else the estimate) or
+    `cooldown_s` has passed. The target is upright for the first 2 s.
+
+    ## Episode end
+
+    | condition | result |
+    |---|---|
+    | `episode_s` elapsed (`episode_s / dt` steps) | `truncated = True` |
+    | the budget is spent | actuation cut, the episode goes on (as in simulation) |
+    | a spring at or above `cutoff_C` | that muscle is held off until it is below (host side; the firmware cuts at its own 110 C limit on fitted thermistors) |
+    | IMU missing or failing, link lost or silent, firmware rejects a command | relays off, `RigError` raised (`RigRefused`, `RigLinkLost`, `RigTimeout`) |
+    | Ctrl-C (`KeyboardInterrupt`) during a step | relays off, recording flushed, re-raised |
+
+    ## Info
+
+    The keys of ``NeckTrack-v0`` (`theta_deg`, `phi_deg` -- measured here --, `temperatures_C`,
+    `energy_J`, `currents_A` -- the RMS commanded current over the step --, `tracking_error_deg`,
+    `target_theta_deg`, `target_phi_deg`, `energy_left_J`, `budget_exhausted`) plus `relays`
+    (pin states read back), `faults` (``protocol.Fault``), `refused` (muscles held off by a
+    firmware safety hold), `late_s` (how late this step ended), `temperature_source`
+    (`"thermistor"` or `"estimate"`), `recording` (path, when recording).
+
+    ## Recording
+
+    With `record_dir`, every episode writes `rec_NN.csv` (design.md 2.2: `t`, commanded `i1..i3`
+    = `I_s` while the relay pin is on, `theta_deg`, `phi_deg`, `T1..T3` only from thermistors;
+    the estimate as `T1_est..`, raw IMU, relays, faults, target) at the telemetry rate, flushed
+    at least once a second, and `meta.json`; `neck_env.gap` reads the folder as it is.
+
+    ## Arguments
+
+    `port` (device path or pyserial URL) or `link` (an open ``RigLink``); the task arguments of
+    ``NeckTrack-v0`` (`action_mode`, `dt`, `episode_s`, `energy_budget_J`, `supply_current_A`
+    -- **set the supply to this current** --, `cutoff_C`, `params`, `targets`); `thermistors`
+    (mask of fitted thermistors, bit k = muscle k; default none), `stream_hz` (100),
+    `ambient_C` (for the estimate; default: the parameters'), `cooldown_s` (300),
+    `cooldown_margin_C` (3), `record_dir`.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, port: str | None = None, *, link: RigLink | None = None,
+                 action_mode: str = "current", dt: float = DEFAULT_DT_S,
+                 episode_s: float = DEFAULT_EPISODE_S, energy_budget_J: float = DEFAULT_BUDGET_J,
+                 supply_current_A: float = DEFAULT_SUPPLY_A, cutoff_C: float = DEFAULT_CUTOFF_C,
+                 params: NeckParams | str | None = None, targets: TargetSpec | None = None,
+                 thermistors: int = 0, stream_hz: int = 100, ambient_C: float | None = None,
+                 cooldown_s: float = 300.0, cooldown_margin_C: float = 3.0,
+                 record_dir: str | Path | None = None, open_timeout: float = 4.0) -> None:
+        if (port is None) == (link is None):
+            raise ValueError("give exactly one of port (device path or pyserial URL) or link")
+        self.task = TaskConfig(action_mode=action_mode, dt=dt, episode_s=episode_s,
+                               energy_budget_J=energy_budget_J, supply_current_A=supply_current_A,
+                               cutoff_C=cutoff_C, targets=targets if targets is not None else TargetSpec())
+        if not (isinstance(thermistors, int) and 0 <= thermistors <= 7):
+            raise ValueError(f"thermistors must be a bit mask 0..7 (bit k = muscle k), got {thermistors!r}")
+        if not (isinstance(stream_hz, int) and 10 <= stream_hz <= 100):
+            raise ValueError(f"stream_hz must be an integer in [10, 100], got {stream_hz!r}")
+        if stream_hz * self.task.dt < 1.0:
+            raise ValueError(f"stream_hz {stream_hz} gives less than one IMU sample per step of "
+                             f"{self.task.dt} s")
+        if not (cooldown_s >= 0 and cooldown_margin_C > 0):
+            raise ValueError("need cooldown_s >= 0 and cooldown_margin_C > 0")
+        self.params = resolve_params(params)
+        self.dt = self.task.dt
+        self.action_mode = self.task.action_mode
+        self.action_space = (spaces.MultiBinary(3) if self.action_mode == "relay"
+                             else spaces.Box(0.0, MAX_CURRENT_A, (3,), dtype=np.float32))
+        self.observation_space = observation_space()
+        self.thermistor_mask = thermistors
+        self.stream_hz = stream_hz
+        self.cooldown_s = float(cooldown_s)
+        self.cooldown_margin_C = float(cooldown_margin_C)
+        self.record_dir = None if record_dir is None else Path(record_dir)
+        self.estimate = ThermalEstimate(self.params, ambient_C)
+        self._lock = threading.Lock()
+        self._rows: list[dict[str, Any]] = []
+        self._reset_telemetry_state()
+        self._writer: RecordingWriter | None = None
+        self._episode_active = False
+        self._closed = False
+        self.recordings: list[Path] = []
+        self.link = link if link is not None else RigLink(port, open_timeout=open_timeout)
+        self.link.on_telemetry = self._on_telemetry
+        try:
+            self._configure()
+        except BaseException:
+            self.link.close()
+            raise
+
+    # -- firmware set-up ----------------------------------------------------------------------
+    def _configure(self) -> None:
+        self.link.command(P.SetRelays(0))
+        self.link.command(P.Config(self.thermistor_mask))
+        self.link.command(P.ClearFaults())
+        self.link.command(P.Stream(self.stream_hz))
+        self.hello = self.link.hello
+
+    def _reset_telemetry_state(self) -> None:
+        with self._lock:
+            self._tilt: tuple[float, float] | None = None
+            self._last: P.Telemetry | None = None
+            self._last_host_t = 0.0
+            self._last_mcu_ms: int | None = None
+            self._on_ms = np.zeros(3)
+            self._span_ms = 0.0
+            self._samples = 0
+
+    # -- telemetry (reader thread) ------------------------------------------------------------
+    def _on_telemetry(self, tm: P.Telemetry, t_host: float) -> None:
+        ax, ay, az = (v / P.ACCEL_LSB_PER_G for v in tm.accel)
+        gx, gy, _ = (v / P.GYRO_LSB_PER_DPS for v in tm.gyro)
+        with self._lock:
+            if self._last_mcu_ms is None:
+                dt_ms = 0.0
+                self._tilt = tilt_from_accel(ax, ay, az)
+            else:
+                dt_ms = float((tm.t_ms - self._last_mcu_ms) & 0xFFFFFFFF)
+                if dt_ms > 1000.0:  # a gap (reset, lost frames): restart the filter
+                    self._tilt = tilt_from_accel(ax, ay, az)
+                    dt_ms = 0.0
+                else:
+                    bx, by = self._tilt if self._tilt is not None else (0.0, 0.0)
+                    self._tilt = fuse_tilt(bx, by, ax, ay, az, gx, gy, dt_ms / 1000.0, FILTER_TAU_S)
+                # the previous sample's relay states held over the interval
+                if self._last is not None:
+                    for k in range(3):
+                        if self._last.relays >> k & 1:
+                            self._on_ms[k] += dt_ms
+            self._span_ms += dt_ms
+            self._samples += 1
+            self._last, self._last_host_t, self._last_mcu_ms = tm, t_host, tm.t_ms
+            if self._episode_active:
+                self._rows.append(self._row(tm))
+
+    def _row(self, tm: P.Telemetry) -> dict[str, Any]:
+        """A recording row (called with the lock held)."""
+        th, ph = tilt_angles_deg(*self._tilt)
+        tgt_th, tgt_ph = tilt_angles_deg(*self._target_now)
+        Is = self.task.supply_current_A
+        row = {"t": ((tm.t_ms - self._t0_mcu_ms) & 0xFFFFFFFF) / 1000.0,
+               "i1": Is * (tm.relays & 1), "i2": Is * (tm.relays >> 1 & 1),
+               "i3": Is * (tm.relays >> 2 & 1), "theta_deg": float(th), "phi_deg": float(ph),
+               "ax": tm.accel[0], "ay": tm.accel[1], "az": tm.accel[2],
+               "gx": tm.gyro[0], "gy": tm.gyro[1], "gz": tm.gyro[2],
+               "relays": tm.relays, "faults": int(tm.faults),
+               "target_theta_deg": float(tgt_th), "target_phi_deg": float(tgt_ph),
+               "t_mcu_ms": tm.t_ms}
+        T = self._T_est
+        row.update({"T1_est": T[0], "T2_est": T[1], "T3_est": T[2]})
+        if self.thermistor_mask:
+            for k, name in enumerate(THERMISTOR_COLUMNS):
+                row[name] = P.ntc_adc_to_celsius(tm.thermistors[k]) if self.thermistor_mask >> k & 1 else ""
+        return row
+
+    # -- helpers ------------------------------------------------------------------------------
+    def _temperatures(self, tm: P.Telemetry | None) -> tuple[np.ndarray, str]:
+        T = self.estimate.temperatures_C
+        if not self.thermistor_mask or tm is None:
+            return T, "estimate"
+        for k in range(3):
+            if self.thermistor_mask >> k & 1:
+                v = P.ntc_adc_to_celsius(tm.thermistors[k])
+                if math.isfinite(v):
+                    T[k] = v
+        return T, "thermistor" if self.thermistor_mask == 7 else "thermistor+estimate"
+
+    def _fail(self, exc: BaseException) -> None:
+        """Relays off, recording closed; called on every error path before raising."""
+        self._episode_active = False
+        try:
+            self.link.all_off()
+        finally:
+            self._close_recording()
+
+    def _check_faults(self, tm: P.Telemetry) -> None:
+        if tm.faults & P.Fault.imu_any():
+            names = "|".join(f.name for f in P.Fault if f & tm.faults & P.Fault.imu_any())
+            raise RigRefused(f"IMU fault reported by the firmware ({names}): check the MPU6050 "
+                             f"wiring (I2C on A4/A5, address 0x68); relays switched off")
+
+    def _wait_telemetry(self, after_samples: int, timeout: float) -> P.Telemetry:
+        deadline = time.monotonic() + timeout
+        while True:
+            self.link.check()
+            with self._lock:
+                if self._samples > after_samples and self._last is not None:
+                    return self._last
+            if time.monotonic() > deadline:
+                raise RigTimeout(f"{self.link.port}: no telemetry for {timeout:.2f} s (firmware "
+                                 f"reset or link stalled); relays switched off")
+            time.sleep(0.005)
+
+    def _open_recording(self) -> None:
+        if self.record_dir is None:
+            return
+        self.record_dir.mkdir(parents=True, exist_ok=True)
+        if not (self.record_dir / "meta.json").exists():
+            write_meta(self.record_dir, {
+                "ambient_C": self.estimate.ambient_C, "sample_hz": float(self.stream_hz),
+                "muscle_azimuth_deg": list(self.params.muscles.azimuths_deg)})
+        n = len(list(self.record_dir.glob("rec_*.csv"))) + 1
+        path = self.record_dir / f"rec_{n:02d}.csv"
+        while path.exists():
+            n += 1
+            path = self.record_dir / f"rec_{n:02d}.csv"
+        cols = list(RECORD_COLUMNS)
+        if self.thermistor_mask:
+            cols[6:6] = THERMISTOR_COLUMNS
+        self._writer = RecordingWriter(path, cols)
+        self.recordings.append(path)
+
+    def _drain_rows(self) -> None:
+        with self._lock:
+            rows, self._rows = self._rows, []
+        if self._writer is not None and rows:
+            self._writer.write_many(rows)
+
+    def _close_recording(self) -> None:
+        try:
+            self._drain_rows()
+        finally:
+            if self._writer is not None:
+                self._writer.close()
+                self._writer = None
+
+    # -- gymnasium API ------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self._check_open()
+        self._episode_active = False
+        try:
+            self._close_recording()
+            self.link.command(P.SetRelays(0))
+            self.link.command(P.ClearFaults())
+            tm = self._wait_telemetry(self._samples, FIRST_SAMPLE_TIMEOUT_S)
+            self._check_faults(tm)
+            self._cool_down()
+            spec = self.task.targets
+            m = spec.max_segments(self.task.episode_s)
+            self._t0s, self._ramps, self._ways, self._nseg = sample_targets(
+                spec, self.task.episode_s, self.np_random, m)
+            self._k = 0
+            self._energy_J = 0.0
+            self._exhausted = False
+            self._T_est = self.estimate.temperatures_C
+            self._target_now = target_at(0.0, self._t0s, self._ramps, self._ways, self._nseg)
+            self._open_recording()
+            with self._lock:
+                self._t0_mcu_ms = self._last.t_ms
+                self._on_ms[:] = 0.0
+                self._span_ms = 0.0
+                self._rows = []
+                self._episode_active = True
+            self._t_start = time.monotonic()
+            obs, info = self._observe(np.zeros(3), tm, refused=0, late=0.0)
+        except BaseException as exc:
+            self._fail(exc)
+            raise
+        return obs, info
+
+    def _cool_down(self) -> None:
+        if self.cooldown_s <= 0:
+            return
+        t_end = time.monotonic() + self.cooldown_s
+        last = time.monotonic()
+        while True:
+            now = time.monotonic()
+            self.estimate.advance(np.zeros(3), now - last)
+            last = now
+            T, _ = self._temperatures(self._last)
+            if np.all(T <= self.estimate.ambient_C + self.cooldown_margin_C) or now >= t_end:
+                return
+            self.link.keepalive()
+            time.sleep(0.1)
+
+    def step(self, action):
+        self._check_open()
+        if not self._episode_active:
+            raise RuntimeError("call reset() before step() (and after an error or the episode end)")
+        try:
+            a = validate_action(action, self.action_mode, 1, single=True)[0]
+            return self._step(a)
+        except BaseException as exc:
+            self._fail(exc)
+            if isinstance(exc, (RigError, ValueError, KeyboardInterrupt)):
+                raise
+            raise RigError(f"rig step failed, relays switched off: {exc!r}") from exc
+
+    def _step(self, a: np.ndarray):
+        Is = self.task.supply_current_A
+        T_now, _ = self._temperatures(self._last)
+        hot = T_now >= self.task.cutoff_C
+        if self.action_mode == "relay":
+            duty = a.astype(float)
+        else:
+            duty = np.clip((a / Is) ** 2, 0.0, 1.0)
+        duty[hot] = 0.0
+        # budget: scale this step so it cannot overdraw (the plant does the same in simulation)
+        left = self.task.energy_budget_J - self._energy_J
+        planned = float((duty * Is ** 2 * self.estimate.resistance_ohm()).sum() * self.dt)
+        if left <= 1e-9:
+            duty[:] = 0.0
+            self._exhausted = True
+        elif planned > left:
+            duty *= left / planned
+        if self.action_mode == "relay" and not np.all((duty == 0) | (duty == 1)):
+            # a partial last step of the budget: hold the relays off rather than overdraw
+            duty[:] = 0.0
+            self._exhausted = True
+        if self.action_mode == "relay":
+            mask = int(sum(1 << k for k in range(3) if duty[k] >= 1.0))
+            ack = self.link.command(P.SetRelays(mask), retries=0)
+        else:
+            ack = self.link.command(P.SetDuty(tuple(int(round(1000 * d)) for d in duty)), retries=0)
+        # real time: end the step dt after the previous one; never sprint to catch up
+        self._k += 1
+        deadline = self._t_start + self._k * self.dt
+        while True:
+            now = time.monotonic()
+            if now >= deadline:
+                break
+            self.link.check()
+            time.sleep(min(0.005, deadline - now))
+        late = now - deadline
+        if late > self.dt:
+            self._t_start += late  # re-anchor: a slow policy stretches the episode, not the physics
+        with self._lock:
+            tm, age = self._last, time.monotonic() - self._last_host_t
+            on_ms, span_ms = self._on_ms.copy(), self._span_ms
+            self._on_ms[:] = 0.0
+            self._span_ms = 0.0
+        if tm is None or age > TELEMETRY_TIMEOUT_S:
+            raise RigTimeout(f"{self.link.port}: no telemetry for {age:.2f} s; relays switched off")
+        self._check_faults(tm)
+        frac = on_ms / span_ms if span_ms > 0 else np.array([tm.relays >> k & 1 for k in range(3)], float)
+        rms = Is * np.sqrt(np.clip(frac, 0.0, 1.0))
+        self._energy_J += self.estimate.advance(rms, self.dt)
+        if self._energy_J >= self.task.energy_budget_J - 1e-9:
+            self._exhausted = True
+        t = self._k * self.dt
+        self._target_now = target_at(t, self._t0s, self._ramps, self._ways, self._nseg)
+        self._T_est = self.estimate.temperatures_C
+        self._drain_rows()
+        obs, info = self._observe(rms, tm, refused=ack.refused_mask, late=max(late, 0.0))
+        reward = -info["tracking_error_deg"]
+        truncated = self._k >= self.task.episode_steps
+        if truncated:
+            self._episode_active = False
+            self.link.command(P.SetRelays(0))
+            self._close_recording()
+        return obs, float(reward), False, truncated, info
+
+    def _observe(self, rms: np.ndarray, tm: P.Telemetry, refused: int, late: float):
+        with self._lock:
+            tx, ty = self._tilt
+        T, source = self._temperatures(tm)
+        gx, gy = self._target_now
+        b = self.task.energy_budget_J
+        frac = 1.0 if math.isinf(b) else max(0.0, 1.0 - self._energy_J / b)
+        obs = np.empty(8, np.float32)
+        fill_observation(obs, tx, ty, T[0], T[1], T[2], gx, gy, frac)
+        th, ph = tilt_angles_deg(tx, ty)
+        tth, tph = tilt_angles_deg(gx, gy)
+        info = {"theta_deg": float(th), "phi_deg": float(ph), "temperatures_C": T.copy(),
+                "energy_J": float(self._energy_J), "currents_A": np.asarray(rms, float).copy(),
+                "tracking_error_deg": float(tracking_error_deg(tx, ty, gx, gy)),
+                "target_theta_deg": float(tth), "target_phi_deg": float(tph),
+                "energy_left_J": float(max(b - self._energy_J, 0.0)),
+                "budget_exhausted": bool(self._exhausted),
+                "relays": tuple(bool(tm.relays >> k & 1) for k in range(3)),
+                "faults": P.Fault(tm.faults), "refused": int(refused), "late_s": float(late),
+                "temperature_source": source}
+        if self._writer is not None:
+            info["recording"] = str(self._writer.path)
+        return obs, info
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("HardwareNeckEnv is closed")
+
+    def close(self) -> None:
+        """Relays off, telemetry off, recording flushed, port closed. Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        self._episode_active = False
+        try:
+            self.link.close()
+        finally:
+            self._close_recording()

@@ -1,0 +1,154 @@
+"""The simulator playing the physical neck for the hardware-in-the-loop harness.
+
+:class:`SimulatedNeck` closes the loop around the real firmware running in simavr
+(``neck_env.rig.simavr.SimavrHarness``): relay pin changes (time-stamped in simulated MCU time)
+-> supply current through the switched muscles -> ``neck_env.physics.plant`` -> head pose ->
+MPU6050 accelerometer and gyro registers (``neck_env.sensors.imu_reading``, plus white noise
+and biases of ``SensorParams``) and, optionally, thermistor ADC counts. The physics clock is
+the emulator's own clock, so the firmware's timing (duty windows, watchdogs) and the plant
+agree whatever the emulator's speed; the host sees the same serial traffic as from a real UNO.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Mapping
+
+import numpy as np
+
+from .. import effects as fx
+from ..params import NeckParams, default_params
+from ..physics import layout as L
+from ..physics.plant import constants_from_params, initial_state, step_inplace
+from ..sensors import SensorParams, imu_reading
+from . import protocol as P
+from .simavr import HarnessError, SimavrHarness
+
+__all__ = ["SimulatedNeck"]
+
+PLANT_DT_S = 0.01
+
+
+def _int16(v: float) -> int:
+    return int(max(-32768, min(32767, round(v))))
+
+
+class SimulatedNeck:
+    """Run the plant against the harness's relay pins in a background thread.
+
+    ``supply_current_A``: what flows through a muscle while its relay pin is on.
+    ``thermistors``: mask of muscles whose spring temperature is served on A0-A2.
+    ``sensors=None`` gives a noise-free IMU; ``seed`` seeds noise and biases.
+    """
+
+    def __init__(self, harness: SimavrHarness, supply_current_A: float = 7.0,
+                 params: NeckParams | None = None, sensors: SensorParams | None = SensorParams(),
+                 effects: Mapping[str, Mapping[str, float]] | None = None, thermistors: int = 0,
+                 seed: int = 0, period_s: float = 0.005) -> None:
+        self.h = harness
+        self.supply_current_A = float(supply_current_A)
+        eff = fx.check_effects(effects)
+        consts = constants_from_params(params or default_params())
+        self.consts = np.ascontiguousarray(fx.apply_to_constants(
+            consts, {k: v for k, v in eff.items() if fx.EFFECTS[k].kind == "plant"}))
+        self.mount = np.ascontiguousarray(fx.imu_mount(eff))
+        self.x = initial_state(self.consts, 1)
+        self.sensors = sensors
+        self.rng = np.random.default_rng(seed)
+        s = sensors or SensorParams(0.0, 0.0, 0.0, 0.0, 0.0)
+        self.accel_bias = self.rng.normal(0.0, s.accel_bias_g, 3)
+        self.gyro_bias = self.rng.normal(0.0, s.gyro_bias_dps, 3)
+        self.thermistors = int(thermistors)
+        self.period_s = float(period_s)
+        self.t_us: int | None = None
+        self.log: list[tuple[float, float, float, tuple[bool, bool, bool]]] = []  # (t_s, theta, phi, relays)
+        self.error: BaseException | None = None
+        self._pins = (False, False, False)
+        self._event_i = 0
+        self._q_prev = self.x[0, L.S_Q:L.S_Q + 3].copy()
+        self._left = np.full(1, np.inf)
+        self._out = np.empty((1, L.N_OUT))
+        self._scratch = (np.empty(3), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3),
+                         np.empty(6))
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.lock = threading.Lock()
+
+    # -- one update ---------------------------------------------------------------------------
+    def update(self) -> None:
+        """Advance the plant to the emulator's present time and publish the sensors."""
+        now = self.h.sim_time_us()
+        if self.t_us is None:
+            self.t_us = now
+            self._publish(PLANT_DT_S)
+            return
+        events = self.h.relay_events
+        cur = np.zeros((1, 3))
+        advanced = 0.0
+        while self.t_us < now:
+            t_end = min(now, self.t_us + int(PLANT_DT_S * 1e6))
+            # relay state at the start of the sub-step (10 ms resolution of switching)
+            while self._event_i < len(events) and events[self._event_i].t_us <= self.t_us:
+                ev = events[self._event_i]
+                pins = list(self._pins)
+                pins[ev.muscle] = ev.on
+                self._pins = tuple(pins)  # type: ignore[assignment]
+                self._event_i += 1
+            cur[0] = [self.supply_current_A if p else 0.0 for p in self._pins]
+            h = (t_end - self.t_us) * 1e-6
+            self._q_prev = self.x[0, L.S_Q:L.S_Q + 3].copy()
+            with self.lock:
+                step_inplace(self.consts, self.x, cur, h, 1, self._left, self._out)
+                self.log.append((t_end * 1e-6, float(self._out[0, L.O_THETA]),
+                                 float(self._out[0, L.O_PHI]), self._pins))
+            self.t_us = t_end
+            advanced = h
+        if advanced > 0:
+            self._publish(advanced)
+
+    def _publish(self, dt_s: float) -> None:
+        tip, dtip, rot, v, w, r = self._scratch
+        q = self.x[0, L.S_Q:L.S_Q + 3].copy()
+        imu_reading(q, self._q_prev, max(dt_s, 1e-6), self.mount, tip, dtip, rot, v, w, r)
+        a = r[:3] + self.accel_bias
+        g = r[3:] + self.gyro_bias
+        if self.sensors is not None:
+            a = a + self.rng.normal(0.0, self.sensors.accel_noise_g, 3)
+            g = g + self.rng.normal(0.0, self.sensors.gyro_noise_dps, 3)
+        self.h.set_imu(*(_int16(x * P.ACCEL_LSB_PER_G) for x in a),
+                       *(_int16(x * P.GYRO_LSB_PER_DPS) for x in g))
+        for k in range(3):
+            if self.thermistors >> k & 1:
+                self.h.set_adc(k, int(round(P.celsius_to_ntc_adc(float(self.x[0, L.S_T + k])))))
+
+    @property
+    def theta_deg(self) -> float:
+        with self.lock:
+            return float(self._out[0, L.O_THETA]) if self.log else 0.0
+
+    @property
+    def temperatures_C(self) -> np.ndarray:
+        with self.lock:
+            return self.x[0, L.S_T:L.S_T + 3].copy()
+
+    # -- background thread --------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            while not self._stop.wait(self.period_s):
+                self.update()
+        except HarnessError as exc:
+            if not self._stop.is_set():
+                self.error = exc
+        except BaseException as exc:  # noqa: BLE001 - reported to the test through .error
+            self.error = exc
+
+    def start(self) -> "SimulatedNeck":
+        self.update()
+        self._thread = threading.Thread(target=self._run, name="sim-neck", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
