@@ -1,7 +1,9 @@
 """neck_env.rig.protocol: CRC, framing, messages, streaming decoder (pure Python, fast)."""
 
 import random
+import re
 import struct
+from pathlib import Path
 
 import pytest
 
@@ -36,6 +38,7 @@ HOST_MESSAGES = [
     P.Stop(),
     P.Heartbeat(),
     P.Config(0b101),
+    P.Config(0b111, 16, 20),
     P.ClearFaults(),
     P.GetStatus(),
     P.WdtTest(),
@@ -184,3 +187,22 @@ def test_python_constants_match_the_firmware_header():
     for e in P.ErrorCode:
         assert consts[f"ERR_{e.name}"] == e.value, e
     assert {k[len("FAULT_"):]: v for k, v in shifts.items()} == {f.name: f.value for f in P.Fault}
+
+
+def test_config_cut_threshold_from_temperature_and_firmware_maximum():
+    c = P.Config.for_cutoff(0b111, 160.0)
+    # 160 C -> 16.2 counts of the 10k/beta-3950 divider; released 10 C lower (150 C, 20 counts)
+    assert (c.cut_adc, c.release_adc) == (16, 20)
+    assert P.ntc_adc_to_celsius(c.cut_adc) == pytest.approx(160.0, abs=1.5)
+    assert len(c.payload()) == 5 and len(P.Config(0b111).payload()) == 1
+    with pytest.raises(P.ProtocolError, match="maximum"):
+        P.Config.for_cutoff(0b001, 180.0)
+    with pytest.raises(P.ProtocolError, match="maximum"):
+        P.Config.for_cutoff(0b001, float("inf"))
+    with pytest.raises(P.ProtocolError, match="both"):
+        P.Config(0b001, 16)
+    # the firmware's limits as the header states them
+    text = (Path(__file__).resolve().parents[1] / "firmware" / "src" / "config.h").read_text()
+    assert int(re.search(r"#define THERM_CUT_ADC_MIN (\d+)U", text)[1]) == P.THERM_CUT_ADC_MIN
+    assert int(re.search(r"#define THERM_CUT_ADC (\d+)U", text)[1]) == P.THERM_CUT_ADC_DEFAULT
+    assert P.ntc_adc_to_celsius(P.THERM_CUT_ADC_MIN) == pytest.approx(P.THERM_MAX_CUT_C, abs=0.5)

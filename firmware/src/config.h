@@ -10,7 +10,7 @@
 // Firmware identity
 // ---------------------------------------------------------------------------
 #define FW_VERSION_MAJOR 1
-#define FW_VERSION_MINOR 0
+#define FW_VERSION_MINOR 1
 #define FW_VERSION_PATCH 0
 
 // ---------------------------------------------------------------------------
@@ -62,13 +62,19 @@
 // Divider: 10 kOhm fixed resistor from +5 V to the pin, NTC (10 kOhm at 25 C,
 // beta 3950) from the pin to GND. ADC = 1023 * R_ntc / (R_ntc + 10k), so a hot
 // NTC reads LOW.
-//   110 C -> R_ntc = 529 Ohm  -> ADC 51.4  (cut at ADC <= 51)
-//   100 C -> R_ntc = 698 Ohm  -> ADC 66.7  (release when ADC >= 67)
+//   110 C -> R_ntc = 529 Ohm  -> ADC 51.4  (default cut at ADC <= 51)
+//   100 C -> R_ntc = 698 Ohm  -> ADC 66.7  (default release when ADC >= 67)
+// The host may move the cut with CONFIG (the env sends its cutoff_C, 160 C by
+// default: ADC 16, released at 150 C, ADC 20), but never hotter than
+// THERM_CUT_ADC_MIN: 14 counts = 167 C, the firmware's own maximum. Near
+// 160 C one ADC count is ~3 C, so the cut is good to about +-2 C there.
 // An open NTC reads near 1023 (THERM_OPEN_ADC): treated as a sensor fault and
 // the muscle is kept off (fail safe). A shorted NTC reads ~0 = "hot" = cut.
 // ---------------------------------------------------------------------------
 #define THERM_CUT_ADC 51U
 #define THERM_RELEASE_ADC 67U
+#define THERM_CUT_ADC_MIN 14U       // hottest cut a host may set (~167 C)
+#define THERM_HYSTERESIS_ADC_MIN 2U // release at least this many counts above the cut
 #define THERM_OPEN_ADC 1015U
 #define THERM_CONFIRM_SAMPLES 3   // consecutive samples before acting (noise)
 #define ADC_PERIOD_MS 10UL

@@ -127,6 +127,8 @@ static uint16_t imu_errors;
 
 // Thermistors
 static uint8_t therm_mask;       // fitted thermistors (bit k = muscle k)
+static uint16_t therm_cut_adc = THERM_CUT_ADC;          // cut at or below (hot NTC reads low)
+static uint16_t therm_release_adc = THERM_RELEASE_ADC;  // release at or above
 static uint16_t therm_adc[N_MUSCLES];
 static uint32_t adc_next_ms;
 
@@ -308,8 +310,8 @@ static void send_hello_reply(uint8_t seq) {
   p[23] = IMU_ACCEL_CONFIG_VAL;
   p[24] = IMU_GYRO_CONFIG_VAL;
   p[25] = IMU_CONFIG_VAL;
-  put_u16(p + 26, THERM_CUT_ADC);
-  put_u16(p + 28, THERM_RELEASE_ADC);
+  put_u16(p + 26, therm_cut_adc);
+  put_u16(p + 28, therm_release_adc);
   put_u16(p + 30, THERM_OPEN_ADC);
   p[32] = boot_mcusr;
   send_frame(MSG_HELLO_REPLY, seq, 33, false);
@@ -392,7 +394,9 @@ static void handle_frame(uint8_t ver, uint8_t type, uint8_t seq, const uint8_t *
       want_len = 0; break;
     case MSG_SET_RELAYS: want_len = 2; break;
     case MSG_SET_DUTY: want_len = 6; break;
-    case MSG_STREAM: case MSG_CONFIG: want_len = 1; break;
+    case MSG_STREAM: want_len = 1; break;
+    // CONFIG: the mask alone (default cut) or mask + cut + release thresholds.
+    case MSG_CONFIG: want_len = (len == 5) ? 5 : 1; break;
     case MSG_WDT_TEST: want_len = 4; break;
     default: want_len = 0xFF; break;
   }
@@ -430,6 +434,16 @@ static void handle_frame(uint8_t ver, uint8_t type, uint8_t seq, const uint8_t *
       if ((pl[0] & 0xF8u) != 0) {
         reject(type, seq, ERR_BAD_VALUE);
         return;
+      }
+      if (len == 5) {
+        // Never hotter than the firmware's own maximum, a real hysteresis, and a
+        // release below the open-sensor reading (else a cut would never end).
+        uint16_t cut = get_u16(pl + 1), rel = get_u16(pl + 3);
+        if (cut < THERM_CUT_ADC_MIN || cut >= THERM_OPEN_ADC || rel >= THERM_OPEN_ADC ||
+            rel < cut + THERM_HYSTERESIS_ADC_MIN) {
+          reject(type, seq, ERR_BAD_VALUE);
+          return;
+        }
       }
       break;
     case MSG_WDT_TEST:
@@ -503,6 +517,8 @@ static void handle_frame(uint8_t ver, uint8_t type, uint8_t seq, const uint8_t *
       break;
     case MSG_CONFIG:
       therm_mask = pl[0];
+      therm_cut_adc = (len == 5) ? get_u16(pl + 1) : THERM_CUT_ADC;
+      therm_release_adc = (len == 5) ? get_u16(pl + 3) : THERM_RELEASE_ADC;
       for (uint8_t k = 0; k < N_MUSCLES; k++) {
         if (!(therm_mask & (1u << k))) {
           mus[k].overtemp = mus[k].therm_open = false;
@@ -741,7 +757,7 @@ static void therm_task(uint32_t now) {
     if (open && !m.therm_open) muscle_clear_command(m);
     m.therm_open = open;
 
-    if (v <= THERM_CUT_ADC) {
+    if (v <= therm_cut_adc) {
       if (m.hot_count < THERM_CONFIRM_SAMPLES) m.hot_count++;
     } else {
       m.hot_count = 0;
@@ -750,7 +766,7 @@ static void therm_task(uint32_t now) {
       m.overtemp = true;
       if (m.mode != MODE_OFF) latched_faults |= FAULT_SAFETY_TRIP;
       muscle_clear_command(m);
-    } else if (m.overtemp && v >= THERM_RELEASE_ADC) {
+    } else if (m.overtemp && v >= therm_release_adc) {
       m.overtemp = false;
     }
   }

@@ -25,7 +25,7 @@ enum : uint8_t {
   MSG_STREAM = 0x04,       // len 1: rate Hz (0 = off)
   MSG_STOP = 0x05,         // len 0
   MSG_HEARTBEAT = 0x06,    // len 0
-  MSG_CONFIG = 0x07,       // len 1: thermistor-fitted mask
+  MSG_CONFIG = 0x07,       // len 1: thermistor-fitted mask; len 5: + u16 cut, u16 release ADC
   MSG_CLEAR_FAULTS = 0x08, // len 0
   MSG_GET_STATUS = 0x09,   // len 0 -> one STATUS frame
   MSG_WDT_TEST = 0x0A,     // len 4: 'W' 'D' 'T' '!'

@@ -81,7 +81,7 @@ class HardwareNeckEnv(gym.Env):
     |---|---|
     | `episode_s` elapsed (`episode_s / dt` steps) | `truncated = True` |
     | the budget is spent | actuation cut, the episode goes on (as in simulation) |
-    | a spring at or above `cutoff_C` | that muscle is held off until it is below (host side; the firmware cuts at its own 110 C limit on fitted thermistors) |
+    | a spring at or above `cutoff_C` | that muscle is held off until it is below (host side, on the observed temperature); with thermistors fitted the firmware cuts at the same `cutoff_C` (sent with `CONFIG`, at most its own maximum of ~167 C) |
     | IMU missing or failing, link lost or silent, firmware rejects a command | relays off, `RigError` raised (`RigRefused`, `RigLinkLost`, `RigTimeout`) |
     | Ctrl-C (`KeyboardInterrupt`) during a step | relays off, recording flushed, re-raised |
 
@@ -163,9 +163,20 @@ class HardwareNeckEnv(gym.Env):
             raise
 
     # -- firmware set-up ----------------------------------------------------------------------
+    def _config_message(self) -> P.Config:
+        """CONFIG for the fitted thermistors, with the firmware's cut at ``cutoff_C`` so the
+        rig cuts where the simulator does (firmware >= 1.1; 1.0 had a fixed 110 C cut)."""
+        if not self.thermistor_mask:
+            return P.Config(0)
+        try:
+            return P.Config.for_cutoff(self.thermistor_mask, self.task.cutoff_C)
+        except P.ProtocolError as exc:
+            raise ValueError(f"cutoff_C = {self.task.cutoff_C} with thermistors fitted: {exc}; "
+                             f"pass cutoff_C <= {P.THERM_MAX_CUT_C:.0f}") from None
+
     def _configure(self) -> None:
         self.link.command(P.SetRelays(0))
-        self.link.command(P.Config(self.thermistor_mask))
+        self.link.command(self._config_message())
         self.link.command(P.ClearFaults())
         self.link.command(P.Stream(self.stream_hz))
         self.hello = self.link.hello

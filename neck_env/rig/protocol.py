@@ -62,6 +62,10 @@ __all__ = [
     "ntc_adc_to_celsius",
     "celsius_to_ntc_adc",
     "ACCEL_LSB_PER_G",
+    "THERM_CUT_ADC_DEFAULT",
+    "THERM_RELEASE_ADC_DEFAULT",
+    "THERM_CUT_ADC_MIN",
+    "THERM_MAX_CUT_C",
     "GYRO_LSB_PER_DPS",
 ]
 
@@ -72,6 +76,14 @@ CRC_LEN = 2
 MAX_PAYLOAD = 64
 MAX_FRAME_LEN = HEADER_LEN + MAX_PAYLOAD + CRC_LEN
 N_MUSCLES = 3
+
+#: Over-temperature cut of fitted thermistors (firmware/src/config.h): the default after reset,
+#: and the hottest cut a host may set with CONFIG (ADC counts of the documented NTC divider).
+THERM_CUT_ADC_DEFAULT = 51  # 110 C
+THERM_RELEASE_ADC_DEFAULT = 67  # 100 C
+THERM_CUT_ADC_MIN = 14  # ~167 C: the firmware's maximum
+THERM_MAX_CUT_C = 167.0
+THERM_HYSTERESIS_C = 10.0
 
 #: Scale of the raw IMU values at the firmware's ranges (+-4 g, +-500 deg/s).
 ACCEL_LSB_PER_G = 8192.0
@@ -391,20 +403,59 @@ class Heartbeat(_NoPayload):
 
 @dataclass(frozen=True)
 class Config:
-    """Which thermistors are fitted (bit k = muscle k); enables their over-temperature cut."""
+    """Which thermistors are fitted (bit k = muscle k), enabling their over-temperature cut,
+    and optionally where the cut lies.
+
+    ``cut_adc``/``release_adc`` (both or neither): a fitted muscle is cut when its NTC reads
+    ``<= cut_adc`` (hot reads low) and released at ``>= release_adc``. Omitted: the firmware
+    defaults (110 C / 100 C). The firmware refuses (NAK ``BAD_VALUE``) a cut hotter than
+    ``THERM_CUT_ADC_MIN`` (~167 C), a hysteresis under 2 counts or a release at the
+    open-sensor reading. :meth:`for_cutoff` builds one from temperatures.
+    """
 
     TYPE: ClassVar[MsgType] = MsgType.CONFIG
     thermistor_mask: int
+    cut_adc: int | None = None
+    release_adc: int | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.thermistor_mask <= 0x07:
             raise ProtocolError(f"thermistor mask must be 0..7, got {self.thermistor_mask}")
+        if (self.cut_adc is None) != (self.release_adc is None):
+            raise ProtocolError("give both cut_adc and release_adc, or neither")
+        if self.cut_adc is not None:
+            for name in ("cut_adc", "release_adc"):
+                v = getattr(self, name)
+                if not (isinstance(v, int) and 0 <= v <= 0xFFFF):
+                    raise ProtocolError(f"{name} must be an integer ADC count, got {v!r}")
+
+    @classmethod
+    def for_cutoff(cls, thermistor_mask: int, cutoff_C: float,
+                   hysteresis_C: float = THERM_HYSTERESIS_C) -> "Config":
+        """Cut at ``cutoff_C`` and release ``hysteresis_C`` below it (documented divider).
+        Raises :class:`ProtocolError` above the firmware's maximum (:data:`THERM_MAX_CUT_C`)."""
+        if not (math.isfinite(cutoff_C) and cutoff_C <= THERM_MAX_CUT_C):
+            raise ProtocolError(f"over-temperature cut {cutoff_C} C is above the firmware's "
+                                f"maximum of {THERM_MAX_CUT_C:.0f} C (THERM_CUT_ADC_MIN = "
+                                f"{THERM_CUT_ADC_MIN} counts)")
+        if not hysteresis_C > 0:
+            raise ProtocolError(f"hysteresis must be > 0 C, got {hysteresis_C}")
+        # Hot reads low: cut at the count the cutoff maps to or below (rounded so the cut is
+        # within half a count, ~1.5 C at 160 C, of the asked temperature).
+        cut = max(THERM_CUT_ADC_MIN, int(round(celsius_to_ntc_adc(cutoff_C))))
+        release = max(cut + 2, int(round(celsius_to_ntc_adc(cutoff_C - hysteresis_C))))
+        return cls(thermistor_mask, cut, release)
 
     def payload(self) -> bytes:
-        return bytes((self.thermistor_mask,))
+        if self.cut_adc is None:
+            return bytes((self.thermistor_mask,))
+        return struct.pack("<BHH", self.thermistor_mask, self.cut_adc, self.release_adc)
 
     @classmethod
     def from_payload(cls, p: bytes) -> "Config":
+        if len(p) == 5:
+            mask, cut, rel = struct.unpack("<BHH", p)
+            return cls(mask, cut, rel)
         _check_len(cls.__name__, p, 1)
         return cls(p[0])
 

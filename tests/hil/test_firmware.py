@@ -419,6 +419,43 @@ def test_thermistor_over_temperature_cut(start_rig):
     link.expect_ack(P.Stop())
 
 
+def test_host_sets_the_over_temperature_cut_within_the_firmware_maximum(start_rig):
+    """CONFIG with thresholds: the sim env's 160 C cut on the rig, never above ~167 C."""
+    link = start_rig()
+    link.start_heartbeat(0.05)
+    hello = link.request(P.Hello())
+    assert (hello.therm_cut_adc, hello.therm_release_adc) == (51, 67)  # 110 / 100 C defaults
+    # Out of range: hotter than the firmware maximum, no hysteresis, release at "open": NAK,
+    # and nothing changes.
+    for cut, rel in ((P.THERM_CUT_ADC_MIN - 1, 30), (16, 17), (16, 1015), (1015, 1016)):
+        r = link.request(P.Config(0b001, cut, rel))
+        assert isinstance(r, P.Nak) and r.error == P.ErrorCode.BAD_VALUE, (cut, rel, r)
+    assert link.request(P.Hello()).therm_cut_adc == 51
+    cfg = P.Config.for_cutoff(0b001, 160.0)
+    link.expect_ack(cfg)
+    hello = link.request(P.Hello())
+    assert (hello.therm_cut_adc, hello.therm_release_adc) == (cfg.cut_adc, cfg.release_adc)
+
+    link.expect_ack(P.SetRelays(0b001))
+    link.h.set_adc(0, 51)  # 110 C: the old default cut, now allowed
+    time.sleep(0.1)
+    st = link.status()
+    assert st.relays == 0b001 and not (st.faults & P.Fault.OVERTEMP)
+    n = len(link.h.relay_events)
+    link.h.set_adc(0, cfg.cut_adc)  # 160 C
+    assert link.h.wait_relay(0, False, timeout=1.0, start=n) is not None
+    assert link.status().faults & P.Fault.OVERTEMP
+    link.h.set_adc(0, cfg.release_adc - 1)  # cooler, not yet 150 C: held
+    time.sleep(0.1)
+    assert link.status().faults & P.Fault.OVERTEMP
+    link.h.set_adc(0, cfg.release_adc)
+    _wait_status(link, lambda s: not (s.faults & P.Fault.OVERTEMP), timeout=1.0, what="release")
+    # CONFIG with the mask alone restores the defaults.
+    link.expect_ack(P.Config(0b001))
+    assert link.request(P.Hello()).therm_cut_adc == 51
+    link.expect_ack(P.Stop())
+
+
 # ---------------------------------------------------------------------------
 # IMU
 # ---------------------------------------------------------------------------
@@ -426,8 +463,12 @@ def test_thermistor_over_temperature_cut(start_rig):
 
 def test_imu_is_configured_and_raw_values_reach_telemetry(start_rig):
     link = start_rig()
-    time.sleep(0.05)
     h = link.h
+    # the firmware configures the IMU right after BOOT; on a loaded machine the emulator may
+    # need longer than a fixed sleep for that, so wait for it (bounded)
+    deadline = time.monotonic() + 2.0
+    while h.imu_register(0x1C) != 0x08 and time.monotonic() < deadline:
+        time.sleep(0.01)
     assert h.imu_register(0x6B) == 0x01  # awake, PLL clock
     assert h.imu_register(0x19) == 4  # 200 Hz sample rate
     assert h.imu_register(0x1A) == 0x03  # DLPF
