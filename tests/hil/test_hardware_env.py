@@ -155,10 +155,15 @@ def test_ctrl_c_during_a_step_switches_relays_off(rig, tmp_path):
     env.step(np.array([1, 0, 1]))
     assert h.relay_pins() == (True, False, True)
     main = threading.main_thread().ident
-    threading.Timer(0.02, lambda: signal.pthread_kill(main, signal.SIGINT)).start()
-    with pytest.raises(KeyboardInterrupt):
-        for _ in range(20):
-            env.step(np.array([1, 0, 1]))
+    # a shell starts background jobs with SIGINT ignored: make Ctrl-C raise here regardless
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        threading.Timer(0.02, lambda: signal.pthread_kill(main, signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt):
+            for _ in range(20):
+                env.step(np.array([1, 0, 1]))
+    finally:
+        signal.signal(signal.SIGINT, old)
     time.sleep(0.05)
     assert h.relay_pins() == (False, False, False)
     rec = read_recording(env.recordings[0])  # flushed and readable
