@@ -39,6 +39,22 @@ CROSSING_TARGET_S = (3.0, 5.0)
 PEAK_T_TARGET_C = (70.0, 110.0)
 
 
+def bounded_to_unit(v: float, lower: float, upper: float, log: bool) -> float:
+    """A bounded parameter value mapped to [0, 1] (linearly, or in log space when ``log``):
+    the coordinates every fit in the project works in."""
+    if log:
+        return (math.log(v) - math.log(lower)) / (math.log(upper) - math.log(lower))
+    return (v - lower) / (upper - lower)
+
+
+def bounded_from_unit(u: float, lower: float, upper: float, log: bool) -> float:
+    """Inverse of :func:`bounded_to_unit`, clipped to the bounds."""
+    u = min(max(u, 0.0), 1.0)
+    if log:
+        return math.exp(math.log(lower) + u * (math.log(upper) - math.log(lower)))
+    return lower + u * (upper - lower)
+
+
 @dataclass(frozen=True)
 class FreeParameter:
     name: str  # "group.field"
@@ -47,15 +63,10 @@ class FreeParameter:
     log: bool = False  # fit in log space
 
     def to_unit(self, v: float) -> float:
-        if self.log:
-            return (math.log(v) - math.log(self.lower)) / (math.log(self.upper) - math.log(self.lower))
-        return (v - self.lower) / (self.upper - self.lower)
+        return bounded_to_unit(v, self.lower, self.upper, self.log)
 
     def from_unit(self, u: float) -> float:
-        u = min(max(u, 0.0), 1.0)
-        if self.log:
-            return math.exp(math.log(self.lower) + u * (math.log(self.upper) - math.log(self.lower)))
-        return self.lower + u * (self.upper - self.lower)
+        return bounded_from_unit(u, self.lower, self.upper, self.log)
 
 
 # The paper gives none of these; geometry and material stay at datasheet/assumed values.

@@ -139,6 +139,16 @@ def _spearman(a: np.ndarray, b: np.ndarray) -> float:
     return float((ra * rb).sum() / den) if den > 0 else 0.0
 
 
+def _densest(density: dict, alike: str):
+    """The key whose residual density is over 1.5x every other's, ``alike`` when none stands
+    out, None when there is nothing to compare."""
+    if not density:
+        return None
+    top = max(density, key=density.get)
+    others = [v for k, v in density.items() if k != top]
+    return top if others and density[top] > 1.5 * max(others) else alike
+
+
 def pattern(dec: dict, recs: Sequence[dict]) -> dict:
     """A short reading of a decomposition: which signal, whether one phase or muscle
     concentrates the residual (share per unit of time), and whether it grows across the
@@ -155,24 +165,14 @@ def pattern(dec: dict, recs: Sequence[dict]) -> dict:
         tf = dec["phase_time_fraction"].get(ph, 0.0)
         if tf > 0.02:
             dens[ph] = share / tf
-    if dens:
-        top = max(dens, key=dens.get)
-        rest_d = [v for k, v in dens.items() if k != top]
-        concentrated = top if rest_d and dens[top] > 1.5 * max(rest_d) else "all phases alike"
-    else:
-        concentrated = None
+    concentrated = _densest(dens, "all phases alike")
     mus = {}
     for m in (1, 2, 3):
         e = sum(it["share"] for it in tilt_items if it["muscle"] == m)
         tf = sum(it["time_fraction"] for it in tilt_items if it["muscle"] == m and it["signal"] == "theta")
         if tf > 0.02:
             mus[m] = e / tot_tilt / tf
-    if mus:
-        mt = max(mus, key=mus.get)
-        others = [v for k, v in mus.items() if k != mt]
-        muscle = mt if others and mus[mt] > 1.5 * max(others) else "all muscles alike"
-    else:
-        muscle = None
+    muscle = _densest(mus, "all muscles alike")
     per = np.array([math.sqrt(float(np.mean(r["e_theta"] ** 2 + r["e_phi"] ** 2) / 2)) for r in recs])
     trend = _spearman(np.arange(per.size, dtype=float), per)
     return {"dominant_signal": sig, "tilt_share": tilt, "temperature_share": by_sig.get("temperature", 0.0),

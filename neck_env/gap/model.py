@@ -38,6 +38,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .. import effects as fx
+from ..calibration import bounded_from_unit, bounded_to_unit
 from ..params import NeckParams, default_params
 from ..physics import layout as L
 from ..physics.plant import constants_from_params, initial_state, step_inplace
@@ -67,15 +68,10 @@ class ParamSpec:
     doc: str = ""
 
     def to_unit(self, v: float) -> float:
-        if self.log:
-            return (math.log(v) - math.log(self.lower)) / (math.log(self.upper) - math.log(self.lower))
-        return (v - self.lower) / (self.upper - self.lower)
+        return bounded_to_unit(v, self.lower, self.upper, self.log)
 
     def from_unit(self, u: float) -> float:
-        u = min(max(u, 0.0), 1.0)
-        if self.log:
-            return math.exp(math.log(self.lower) + u * (math.log(self.upper) - math.log(self.lower)))
-        return self.lower + u * (self.upper - self.lower)
+        return bounded_from_unit(u, self.lower, self.upper, self.log)
 
     def prior_residual(self, v: float) -> float:
         if self.prior_sigma is None:
