@@ -28,6 +28,7 @@ from ..params import NeckParams
 from ..recording import RecordingWriter, write_meta
 from ..targets import TargetSpec, sample_targets, target_at, tracking_error_deg
 from . import protocol as P
+from .errors import RigFirmwareReset
 from .link import RigError, RigLink, RigLinkLost, RigRefused, RigTimeout
 from .thermal_estimate import ThermalEstimate
 
@@ -153,6 +154,7 @@ class HardwareNeckEnv(gym.Env):
         self._writer: RecordingWriter | None = None
         self._episode_active = False
         self._closed = False
+        self._boots_seen = 0
         self.recordings: list[Path] = []
         self.link = link if link is not None else RigLink(port, open_timeout=open_timeout)
         self.link.on_telemetry = self._on_telemetry
@@ -318,13 +320,17 @@ class HardwareNeckEnv(gym.Env):
             self._close_recording()
             self.link.command(P.SetRelays(0))
             self.link.command(P.ClearFaults())
+            self._boots_seen = len(self.link.boots)
             tm = self._wait_telemetry(self._samples, FIRST_SAMPLE_TIMEOUT_S)
             self._check_faults(tm)
             self._cool_down()
             spec = self.task.targets
             m = spec.max_segments(self.task.episode_s)
+            # The simulated env's derivation (its np_random draws the core's seed, whose
+            # Generator draws the targets): a seed gives the same targets as NeckTrack-v0.
+            g = np.random.default_rng(int(self.np_random.integers(0, 2**63)))
             self._t0s, self._ramps, self._ways, self._nseg = sample_targets(
-                spec, self.task.episode_s, self.np_random, m)
+                spec, self.task.episode_s, g, m)
             self._k = 0
             self._energy_J = 0.0
             self._exhausted = False
@@ -418,6 +424,12 @@ class HardwareNeckEnv(gym.Env):
         if tm is None or age > TELEMETRY_TIMEOUT_S:
             raise RigTimeout(f"{self.link.port}: no telemetry for {age:.2f} s; relays switched off")
         self._check_faults(tm)
+        if len(self.link.boots) > self._boots_seen:
+            boot = self.link.boots[-1]
+            raise RigFirmwareReset(
+                f"{self.link.port}: the MCU restarted mid-episode ("
+                f"{'AVR watchdog: its loop hung' if boot.watchdog_reset else 'reset or brown-out'}"
+                f"); its commands are lost, relays switched off")
         frac = on_ms / span_ms if span_ms > 0 else np.array([tm.relays >> k & 1 for k in range(3)], float)
         rms = Is * np.sqrt(np.clip(frac, 0.0, 1.0))
         self._energy_J += self.estimate.advance(rms, self.dt)

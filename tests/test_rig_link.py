@@ -1,0 +1,250 @@
+"""The serial link and the hardware env against a Python fake firmware (no simavr, ~10 s).
+
+The fake (``tests/fake_firmware.py``) is served as a pyserial ``socket://`` URL, so these
+tests also exercise the URL path of :class:`neck_env.rig.link.RigLink`. The real firmware's
+safety is tested in ``tests/hil``; here: error paths of the host side.
+"""
+
+from __future__ import annotations
+
+import time
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+pytest.importorskip("serial")
+
+from fake_firmware import FakeFirmware  # noqa: E402
+
+import neck_env  # noqa: E402,F401  (registers NeckTrack-v0)
+from neck_env.recording import read_dataset, read_recording  # noqa: E402
+from neck_env.rig import protocol as P  # noqa: E402
+from neck_env.rig.errors import (RigFirmwareReset, RigImuError, RigLinkLost,  # noqa: E402
+                                 RigRefused, RigTimeout)
+from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
+from neck_env.rig.link import RigLink  # noqa: E402
+
+
+@pytest.fixture
+def fw():
+    f = FakeFirmware()
+    yield f
+    f.close()
+
+
+def _env(fw, **kw) -> HardwareNeckEnv:
+    kw.setdefault("cooldown_s", 0)
+    kw.setdefault("stream_hz", 50)
+    return HardwareNeckEnv(fw.url, **kw)
+
+
+# -- link --------------------------------------------------------------------------------------
+
+
+def test_link_says_hello_and_matches_replies_by_seq(fw):
+    with RigLink(fw.url) as link:
+        assert link.hello.protocol_version == P.PROTOCOL_VERSION
+        # garbage, a truncated frame and a foreign reply in front of the real ones
+        fw.send_raw(b"\x00\xff\xa5\x5a\x01" + P.encode_frame(P.MsgType.ACK, 200, b"\x02\x00")[:-3])
+        fw.send_raw(P.encode_frame(P.MsgType.ACK, 201, b"\x02\x00"))  # nobody asked
+        ack = link.command(P.SetRelays(0b101))
+        assert isinstance(ack, P.Ack) and ack.cmd_type == P.MsgType.SET_RELAYS
+        assert fw.relays == 0b101
+    # close() switched everything off
+    assert fw.relays == 0 and isinstance(fw.received[-1], (P.Stream, P.Stop, P.SetRelays))
+
+
+def test_link_refuses_another_protocol_version():
+    with FakeFirmware(protocol_version=P.PROTOCOL_VERSION + 1) as fw:
+        with pytest.raises(RigRefused, match=r"protocol 2, this host 1: flash the firmware"):
+            RigLink(fw.url)
+
+
+def test_link_without_answering_firmware_times_out_with_a_hint():
+    with FakeFirmware(answer=False) as fw:
+        t = time.monotonic()
+        with pytest.raises(RigTimeout, match="no answer to HELLO within 0.6 s .*firmware flashed"):
+            RigLink(fw.url, open_timeout=0.6)
+        assert time.monotonic() - t < 2.0
+
+
+def test_link_names_a_port_that_does_not_exist():
+    with pytest.raises(RigLinkLost, match="cannot open /dev/does-not-exist"):
+        RigLink("/dev/does-not-exist")
+    with pytest.raises(ValueError, match="port must be"):
+        RigLink("")
+
+
+def test_link_vanished_port_is_a_clear_error_and_reconnect_recovers(fw):
+    link = RigLink(fw.url)
+    fw.vanish()
+    time.sleep(0.1)
+    with pytest.raises(RigLinkLost, match="serial link lost"):
+        link.command(P.SetRelays(1))
+    with pytest.raises(RigLinkLost):
+        link.check()
+    link.reconnect(open_timeout=2.0)  # the fake accepts a new connection (USB replugged)
+    assert link.command(P.SetRelays(0)).cmd_type == P.MsgType.SET_RELAYS
+    link.close()
+
+
+def test_heartbeat_lease_bridges_a_slow_host_but_not_a_dead_one(fw):
+    link = RigLink(fw.url)
+    link.command(P.SetRelays(0b010))
+    link.start_heartbeat(0.05)
+    link.renew(0.6)
+    time.sleep(0.45)  # longer than the firmware's 250 ms, within the lease
+    assert fw.relays == 0b010 and fw.heartbeat_trips == 0
+    time.sleep(0.6)  # the lease ran out: nobody feeds the watchdog any more
+    assert fw.relays == 0 and fw.heartbeat_trips == 1
+    n = sum(isinstance(m, P.Heartbeat) for m in fw.received)
+    assert 4 <= n <= 14
+    link.close()
+
+
+# -- hardware env ------------------------------------------------------------------------------
+
+
+def test_env_spaces_and_targets_are_those_of_necktrack(fw):
+    for mode in ("current", "relay"):
+        sim = gym.make("NeckTrack-v0", action_mode=mode, episode_s=30.0)
+        env = _env(fw, action_mode=mode, episode_s=30.0)
+        assert env.action_space == sim.action_space
+        assert env.observation_space == sim.observation_space
+        env.close()
+    env = _env(fw, episode_s=30.0)
+    sim = gym.make("NeckTrack-v0", episode_s=30.0)
+    obs, _ = env.reset(seed=11)
+    sobs, _ = sim.reset(seed=11)
+    assert env.observation_space.contains(obs)
+    np.testing.assert_allclose(obs[5:8], sobs[5:8], atol=1e-5)  # target and budget at t = 0
+    # the same target trajectory: jump the step counters to 5 s and compare
+    for _ in range(10):
+        _, _, _, _, info = env.step(np.zeros(3, np.float32))
+        _, _, _, _, sinfo = sim.step(np.zeros(3, np.float32))
+        assert info["target_theta_deg"] == pytest.approx(sinfo["target_theta_deg"], abs=1e-6)
+    env.close()
+
+
+def test_env_passes_the_gymnasium_checker(fw):
+    """Every check of ``gymnasium.utils.env_checker.check_env`` that applies to a physical rig.
+    Left out: ``check_step_determinism`` -- the same seed and action cannot give the same next
+    observation on hardware (the springs are still warm from the previous step, the IMU is
+    noisy); the sim env passes it."""
+    from gymnasium.utils import env_checker as ec
+    from gymnasium.utils.passive_env_checker import env_reset_passive_checker, env_step_passive_checker
+
+    env = _env(fw, episode_s=2.0)
+    for space in (env.action_space, env.observation_space):
+        ec.check_space_limit(space, "space")
+    ec.check_action_space(env.action_space)
+    ec.check_observation_space(env.observation_space)
+    ec.check_seed_deprecation(env)
+    ec.check_reset_return_info_deprecation(env)
+    ec.check_reset_return_type(env)
+    ec.check_reset_seed_determinism(env)
+    ec.check_reset_options(env)
+    env_reset_passive_checker(env)
+    env_step_passive_checker(env, env.action_space.sample())
+    ec.check_returned_data_not_reused(env)
+    env.close()
+
+
+def test_env_invalid_action_turns_relays_off_and_names_the_problem(fw):
+    env = _env(fw, action_mode="relay")
+    env.reset(seed=0)
+    env.step(np.array([1, 1, 0]))
+    assert fw.relays == 0b011
+    with pytest.raises(ValueError, match="relay action must be 0 or 1"):
+        env.step(np.array([1, 2, 0]))
+    time.sleep(0.05)
+    assert fw.relays == 0
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.array([1, 0, 0]))
+    env.close()
+
+
+def test_env_imu_fault_is_a_clear_error_with_relays_off():
+    with FakeFirmware(imu_faults=int(P.Fault.IMU_MISSING)) as fw:
+        with pytest.raises((RigImuError, RigRefused), match="IMU.*IMU_MISSING"):
+            env = _env(fw)
+            env.reset(seed=0)
+        assert fw.relays == 0
+    with FakeFirmware() as fw:
+        env = _env(fw, action_mode="relay")
+        env.reset(seed=0)
+        env.step(np.array([0, 0, 1]))
+        fw.imu_faults = int(P.Fault.IMU_READ)  # the IMU fails mid-episode
+        with pytest.raises((RigImuError, RigRefused), match="IMU_READ"):
+            for _ in range(5):
+                env.step(np.array([0, 0, 1]))
+        time.sleep(0.05)
+        assert fw.relays == 0
+        env.close()
+
+
+def test_env_silent_firmware_times_out_with_relays_off(fw):
+    env = _env(fw, action_mode="relay")
+    env.reset(seed=0)
+    env.step(np.array([1, 0, 0]))
+    fw.silent = True
+    with pytest.raises(RigTimeout, match="no reply to SetRelays|no telemetry"):
+        for _ in range(20):
+            env.step(np.array([1, 0, 0]))
+    env.close()
+
+
+def test_env_mcu_restart_mid_episode_is_reported(fw):
+    env = _env(fw, action_mode="relay")
+    env.reset(seed=0)
+    env.step(np.array([1, 0, 0]))
+    fw.send_boot()
+    fw.stream_hz = 50  # keep telemetry coming so only the BOOT can stop the episode
+    with pytest.raises(RigFirmwareReset, match="restarted mid-episode"):
+        for _ in range(5):
+            env.step(np.array([1, 0, 0]))
+    env.close()
+
+
+def test_env_vanished_port_keeps_the_recording(fw, tmp_path):
+    env = _env(fw, action_mode="relay", record_dir=tmp_path)
+    env.reset(seed=0)
+    for _ in range(20):  # 1 s
+        env.step(np.array([0, 1, 0]))
+    fw.vanish()
+    with pytest.raises(RigLinkLost):
+        for _ in range(20):
+            env.step(np.array([0, 1, 0]))
+    rec = read_recording(env.recordings[0])
+    assert rec.n >= 40 and rec.duration_s >= 0.9  # 50 Hz for ~1 s, nothing lost
+    assert rec.i2.max() == pytest.approx(7.0) and rec.i1.max() == 0.0
+    ds = read_dataset(tmp_path)  # a dataset neck-gap can read
+    assert len(ds) == 1 and ds.meta["sample_hz"] == 50
+    env.close()
+
+
+def test_env_energy_from_commanded_on_time_and_budget_cut(fw):
+    env = _env(fw, action_mode="relay", energy_budget_J=30.0)
+    env.reset(seed=0)
+    R = env.estimate.resistance_ohm()[0]  # cold, martensite: ~constant over a few seconds
+    on_steps, info = 0, {}
+    for _ in range(40):  # 2 s
+        _, _, _, _, info = env.step(np.array([1, 0, 0]))
+        on_steps += fw.relays & 1
+        if info["budget_exhausted"]:
+            break
+    # 7 A through ~R ohm: 49 R W; the budget is spent after ~30 / (49 R) s and then cut
+    assert info["budget_exhausted"]
+    assert info["energy_J"] == pytest.approx(30.0, abs=49 * R * 0.04)
+    expect_s = 30.0 / (49 * R)
+    assert abs(on_steps * env.dt - expect_s) < 0.15
+    for _ in range(3):
+        _, _, _, _, info = env.step(np.array([1, 0, 0]))
+    # relays stay off; in relay mode a last step that would overdraw is not taken at all, so
+    # less than one step's energy may remain unspent, and the budget is never overdrawn by
+    # more than one telemetry interval of switching jitter
+    assert fw.relays == 0 and info["budget_exhausted"]
+    assert 0.0 <= info["energy_left_J"] < 49 * R * env.dt
+    assert info["energy_J"] <= 30.0 + 49 * R * 0.02
+    env.close()
