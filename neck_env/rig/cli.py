@@ -87,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="run NeckTrack episodes on the rig with a policy or controller",
                        description="Episodes of the NeckTrack task on the rig (HardwareNeckEnv), "
-                                   "paced in real time, each recorded as rec_NNN.csv.")
+                                   "paced in real time, each recorded as rec_NN.csv.")
     who = r.add_mutually_exclusive_group(required=True)
     who.add_argument("--policy", metavar="PATH",
                      help="a deployable policy (NAME.zip with NAME.json beside it, e.g. "
