@@ -221,7 +221,13 @@ def test_env_vanished_port_keeps_the_recording(fw, tmp_path):
     assert rec.i2.max() == pytest.approx(7.0) and rec.i1.max() == 0.0
     ds = read_dataset(tmp_path)  # a dataset neck-gap can read
     assert len(ds) == 1 and ds.meta["sample_hz"] == 50
+    # the port is back (USB replugged): reset reopens it and a new episode runs and records
+    env.reset(seed=1)
+    for _ in range(5):
+        env.step(np.array([0, 1, 0]))
+    assert fw.relays == 0b010
     env.close()
+    assert fw.relays == 0 and len(read_dataset(tmp_path)) == 2
 
 
 def test_env_energy_from_commanded_on_time_and_budget_cut(fw):
@@ -247,4 +253,27 @@ def test_env_energy_from_commanded_on_time_and_budget_cut(fw):
     assert fw.relays == 0 and info["budget_exhausted"]
     assert 0.0 <= info["energy_left_J"] < 49 * R * env.dt
     assert info["energy_J"] <= 30.0 + 49 * R * 0.02
+    env.close()
+
+
+def test_env_temperature_estimate_keeps_cooling_between_episodes(fw):
+    """Without thermistors the springs' temperatures come from the model on the commanded
+    currents; between episodes (nobody stepping) the springs cool and so does the estimate."""
+    env = _env(fw, action_mode="relay", energy_budget_J=float("inf"))
+    env.reset(seed=0)
+    for _ in range(40):  # 2 s at 7 A on muscle 1
+        obs, _, _, _, info = env.step(np.array([1, 0, 0]))
+    hot = obs[2]
+    assert hot > 40.0 and obs[3] == pytest.approx(25.0, abs=0.5)  # only muscle 1 heated
+    from neck_env.physics.plant import simulate, constants_from_params
+    from neck_env.params import default_params
+
+    time.sleep(1.5)
+    obs, _ = env.reset(seed=1)
+    # the model's own cooling over the ~1.5 s gap, within what a few steps of timing shift
+    traj, _ = simulate(constants_from_params(default_params()),
+                       np.concatenate([np.full((200, 1, 3), [7.0, 0, 0]), np.zeros((150, 1, 3))]),
+                       0.01)
+    drop = traj.T_C[199, 0, 0] - traj.T_C[-1, 0, 0]
+    assert hot - obs[2] == pytest.approx(drop, rel=0.5), (hot, obs[2], drop)
     env.close()

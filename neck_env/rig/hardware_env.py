@@ -148,6 +148,9 @@ class HardwareNeckEnv(gym.Env):
         self.cooldown_margin_C = float(cooldown_margin_C)
         self.record_dir = None if record_dir is None else Path(record_dir)
         self.estimate = ThermalEstimate(self.params, ambient_C)
+        # Wall time up to which the estimate has been advanced: the springs keep cooling
+        # between episodes, whether or not anybody calls step().
+        self._est_clock = time.monotonic()
         self._lock = threading.Lock()
         self._rows: list[dict[str, Any]] = []
         self._reset_telemetry_state()
@@ -318,8 +321,13 @@ class HardwareNeckEnv(gym.Env):
         self._episode_active = False
         try:
             self._close_recording()
-            self.link.command(P.SetRelays(0))
-            self.link.command(P.ClearFaults())
+            if self.link._lost is not None:
+                # the port vanished in an earlier episode: reopen it (USB replugged) and check
+                # the firmware again; raises RigLinkLost if it is still gone
+                self.link.reconnect()
+            # everything again, not only relays off: an error path or an MCU restart stopped
+            # the telemetry and may have forgotten the configuration
+            self._configure()
             self._boots_seen = len(self.link.boots)
             tm = self._wait_telemetry(self._samples, FIRST_SAMPLE_TIMEOUT_S)
             self._check_faults(tm)
@@ -350,15 +358,23 @@ class HardwareNeckEnv(gym.Env):
             raise
         return obs, info
 
+    def _catch_up_estimate(self) -> None:
+        """Cool the estimate over the time since it was last advanced. Relays are off then:
+        the env switches them off at every episode end and error, and the firmware's heartbeat
+        watchdog does 250 ms after a host stops stepping."""
+        now = time.monotonic()
+        if now > self._est_clock:
+            self.estimate.advance(np.zeros(3), now - self._est_clock)
+        self._est_clock = now
+
     def _cool_down(self) -> None:
+        self._catch_up_estimate()
         if self.cooldown_s <= 0:
             return
         t_end = time.monotonic() + self.cooldown_s
-        last = time.monotonic()
         while True:
             now = time.monotonic()
-            self.estimate.advance(np.zeros(3), now - last)
-            last = now
+            self._catch_up_estimate()
             T, _ = self._temperatures(self._last)
             if np.all(T <= self.estimate.ambient_C + self.cooldown_margin_C) or now >= t_end:
                 return
@@ -432,7 +448,12 @@ class HardwareNeckEnv(gym.Env):
                 f"); its commands are lost, relays switched off")
         frac = on_ms / span_ms if span_ms > 0 else np.array([tm.relays >> k & 1 for k in range(3)], float)
         rms = Is * np.sqrt(np.clip(frac, 0.0, 1.0))
-        self._energy_J += self.estimate.advance(rms, self.dt)
+        # over the telemetry's own time span when there is one (a late step covers more than
+        # dt of heating), then idle until now
+        span_s = span_ms / 1000.0 if span_ms > 0 else self.dt
+        self._energy_J += self.estimate.advance(rms, span_s)
+        self._est_clock += span_s
+        self._catch_up_estimate()
         if self._energy_J >= self.task.energy_budget_J - 1e-9:
             self._exhausted = True
         t = self._k * self.dt

@@ -19,7 +19,7 @@ serial = pytest.importorskip("serial")
 
 from neck_env.rig import protocol as P  # noqa: E402
 from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
-from neck_env.rig.link import RigLink  # noqa: E402
+from neck_env.rig.link import RigRefused  # noqa: E402
 from neck_env.rig.sim_neck import SimulatedNeck  # noqa: E402
 from neck_env.rig.simavr import SimavrHarness  # noqa: E402
 
@@ -162,3 +162,30 @@ def test_thermistor_cut_at_the_env_cutoff_in_firmware_and_host(harness):
     assert h.relay_pins()[0] and info["currents_A"][0] > 0
     env.close()
     assert h.relay_pins() == (False, False, False)
+
+
+def test_imu_unplugged_mid_episode_stops_the_run_with_relays_off(harness):
+    h = harness()
+    env = HardwareNeckEnv(h.pty_path, action_mode="relay", episode_s=10.0, cooldown_s=0)
+    env.reset(seed=0)
+    for _ in range(4):
+        env.step(np.array([0, 1, 0]))
+    assert h.relay_pins()[1]
+    h.set_imu_absent(True)
+    with pytest.raises(RigRefused, match="IMU fault.*IMU_MISSING"):
+        for _ in range(10):
+            env.step(np.array([0, 1, 0]))
+    time.sleep(0.05)
+    assert h.relay_pins() == (False, False, False)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.array([0, 1, 0]))
+    h.set_imu_absent(False)  # plugged back in: a new episode may start
+    deadline = time.monotonic() + 3.0
+    while True:  # the firmware re-probes the IMU about once a second
+        try:
+            env.reset(seed=1)
+            break
+        except RigRefused:
+            assert time.monotonic() < deadline, "IMU not back after 3 s"
+            time.sleep(0.2)
+    env.close()
