@@ -82,3 +82,11 @@ def test_run_records_a_dataset(fw, tmp_path, capsys):
     rows = json.loads((tmp_path / "summary.json").read_text())
     assert [r["seed"] for r in rows] == [0, 1] and all(r["rmse_deg"] >= 0 for r in rows)
     assert fw.relays == 0
+
+
+def test_recorded_meta_names_the_rig(fw, tmp_path):
+    assert cli.main(["run", "--controller", "zero", "--port", fw.url, "--episode-s", "0.5",
+                     "--record", str(tmp_path), "--no-cooldown"]) == 0
+    meta = read_dataset(tmp_path).meta
+    assert meta["rig"]["firmware_version"] == "1.1.0" and meta["rig"]["port"] == fw.url
+    assert "T1_est" in meta["rig"]["temperatures"] and meta["ambient_C"] == 25.0

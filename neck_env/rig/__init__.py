@@ -1,11 +1,19 @@
-"""The real rig: the Arduino UNO firmware's wire protocol and its simavr HIL harness.
+"""The real rig: the host side of the Arduino UNO firmware, and its simavr HIL harness.
 
 * :mod:`neck_env.rig.protocol` -- frames, CRC, messages, streaming decoder (pure, no I/O);
+* :mod:`neck_env.rig.link` -- the serial link (pyserial ports and URLs, replies by SEQ,
+  timeouts, lease heartbeat, reconnect); :mod:`neck_env.rig.errors` -- what can go wrong;
+* :mod:`neck_env.rig.hardware_env` -- ``HardwareNeckEnv``, NeckTrack-v0 on the rig;
+* :mod:`neck_env.rig.thermal_estimate` -- spring temperatures from the commanded currents;
+* :mod:`neck_env.rig.pulse`, :mod:`neck_env.rig.cli` -- the step experiment and
+  ``python -m neck_env.rig run | pulse | info``;
 * :mod:`neck_env.rig.simavr` -- runs the real firmware build under simavr with a fake
-  MPU6050, thermistor inputs and relay pins (hardware in the loop).
+  MPU6050, thermistor inputs and relay pins; :mod:`neck_env.rig.sim_neck` -- the simulator
+  playing the neck in that loop (hardware in the loop).
 
 Submodules are imported on demand so that importing the package stays free of
 side effects (no subprocesses, no serial ports).
 """
 
-__all__ = ["protocol", "simavr"]
+__all__ = ["protocol", "link", "errors", "hardware_env", "thermal_estimate", "pulse", "cli",
+           "simavr", "sim_neck"]

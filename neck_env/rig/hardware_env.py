@@ -286,9 +286,17 @@ class HardwareNeckEnv(gym.Env):
             return
         self.record_dir.mkdir(parents=True, exist_ok=True)
         if not (self.record_dir / "meta.json").exists():
+            h = self.link.hello
             write_meta(self.record_dir, {
                 "ambient_C": self.estimate.ambient_C, "sample_hz": float(self.stream_hz),
-                "muscle_azimuth_deg": list(self.params.muscles.azimuths_deg)})
+                "muscle_azimuth_deg": list(self.params.muscles.azimuths_deg),
+                # provenance for whoever reads the dataset later (extra keys are kept)
+                "rig": {"port": self.link.port,
+                        "firmware_version": ".".join(map(str, h.fw_version)) if h else None,
+                        "thermistor_mask": self.thermistor_mask,
+                        "temperatures": ("T1..T3: thermistors; " if self.thermistor_mask else "")
+                        + "T1_est..T3_est: host thermal model on the commanded currents",
+                        "currents": "i1..i3: supply setpoint while the relay pin reads on"}})
         n = len(list(self.record_dir.glob("rec_*.csv"))) + 1
         path = self.record_dir / f"rec_{n:02d}.csv"
         while path.exists():
