@@ -43,6 +43,18 @@ TELEMETRY_TIMEOUT_S = 0.3  # no telemetry for this long while running: the link 
 FIRST_SAMPLE_TIMEOUT_S = 1.0
 
 
+def _warm_up_compiled(estimate: ThermalEstimate) -> None:
+    """Compile (or load from numba's cache) every kernel the run loop and the telemetry thread
+    use, before any telemetry streams. Compiling holds the GIL for seconds on a fresh install:
+    during an episode that would starve the reader thread and trip the telemetry timeout."""
+    fuse_tilt(0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.01, FILTER_TAU_S)
+    tilt_from_accel(0.0, 0.0, 1.0)
+    fill_observation(np.empty(8, np.float32), 0.0, 0.0, 25.0, 25.0, 25.0, 0.0, 0.0, 1.0)
+    target_at(0.0, np.zeros(1), np.zeros(1), np.zeros((1, 2)), 1)
+    tracking_error_deg(0.0, 0.0, 0.0, 0.0)
+    estimate.warm_up()
+
+
 class HardwareNeckEnv(gym.Env):
     """NeckTrack on the physical neck (Arduino UNO firmware, ``firmware/``).
 
@@ -148,6 +160,7 @@ class HardwareNeckEnv(gym.Env):
         self.cooldown_margin_C = float(cooldown_margin_C)
         self.record_dir = None if record_dir is None else Path(record_dir)
         self.estimate = ThermalEstimate(self.params, ambient_C)
+        _warm_up_compiled(self.estimate)
         # Wall time up to which the estimate has been advanced: the springs keep cooling
         # between episodes, whether or not anybody calls step().
         self._est_clock = time.monotonic()

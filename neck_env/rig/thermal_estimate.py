@@ -64,6 +64,12 @@ class ThermalEstimate:
         per_spring = c[L.R_M] * xi + c[L.R_A] * (1.0 - xi)
         return SPRINGS_PER_MUSCLE * per_spring
 
+    def warm_up(self) -> None:
+        """Compile the plant kernel (one step on a scratch copy; the estimate is unchanged)."""
+        x = self._x.copy()
+        step_inplace(self._consts, x, np.zeros((1, 3)), MAX_SUBSTEP_S, 1, self._left.copy(),
+                     np.empty_like(self._out))
+
     def advance(self, rms_current_A: np.ndarray, dt_s: float) -> float:
         """Advance by ``dt_s`` with these RMS currents (3,); returns the energy spent, J."""
         cur = np.ascontiguousarray(np.asarray(rms_current_A, float).reshape(1, 3))

@@ -210,3 +210,29 @@ def start_rig(fw_binaries) -> Iterator[Callable[..., FirmwareLink]]:
     for h, link in opened:
         link.close()
         h.close()
+
+
+@pytest.fixture
+def closed_loop(fw_binaries) -> Iterator[Callable[..., tuple]]:
+    """Factory: ``closed_loop(supply_A=7.0, imu_absent=False, seed=0, neck=True)`` -> (paced
+    harness running the firmware, the simulator playing the neck or None). Everything started
+    is stopped at teardown, the neck before its harness."""
+    from neck_env.rig.sim_neck import SimulatedNeck
+
+    elf, hil = fw_binaries
+    made: list = []
+
+    def start(supply_A: float = 7.0, imu_absent: bool = False, seed: int = 0,
+              neck: bool = True) -> tuple:
+        h = SimavrHarness(elf, hil, speed=1.0, imu_absent=imu_absent)
+        made.append(h.close)
+        sim = None
+        if neck:
+            sim = SimulatedNeck(h, supply_current_A=supply_A, seed=seed).start()
+            made.append(sim.stop)
+        h.run()
+        return h, sim
+
+    yield start
+    for stop in reversed(made):
+        stop()

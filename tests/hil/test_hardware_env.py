@@ -21,8 +21,6 @@ from neck_env.physics.plant import constants_from_params, simulate  # noqa: E402
 from neck_env.recording import read_recording  # noqa: E402
 from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
 from neck_env.rig.link import RigError, RigLink, RigRefused  # noqa: E402
-from neck_env.rig.sim_neck import SimulatedNeck  # noqa: E402
-from neck_env.rig.simavr import SimavrHarness  # noqa: E402
 from neck_env.targets import TargetSpec  # noqa: E402
 
 pytestmark = pytest.mark.hil
@@ -34,28 +32,19 @@ ONE_TARGET = TargetSpec(upright_probability=0.0, step_probability=1.0, hold_s=(2
 
 
 @pytest.fixture
-def rig(fw_binaries):
+def rig(closed_loop):
     """Factory: ``rig(supply_A, imu_absent=False)`` -> (harness, simulated neck, link)."""
-    elf, hil = fw_binaries
-    made = []
+    links = []
 
     def start(supply_A: float = 7.0, imu_absent: bool = False, seed: int = 0):
-        h = SimavrHarness(elf, hil, speed=1.0, imu_absent=imu_absent)
-        made.append(h)
-        neck = SimulatedNeck(h, supply_current_A=supply_A, seed=seed)
-        neck.start()
-        h.run()
+        h, neck = closed_loop(supply_A, imu_absent=imu_absent, seed=seed)
         link = RigLink(h.pty_path, open_timeout=5.0)
-        made.append(link)
-        made.append(neck)
+        links.append(link)
         return h, neck, link
 
     yield start
-    for obj in reversed(made):
-        if isinstance(obj, SimulatedNeck):
-            obj.stop()
-        else:
-            obj.close()
+    for link in links:
+        link.close()
 
 
 def _episode(env, act, seed):

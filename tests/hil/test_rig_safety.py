@@ -20,32 +20,14 @@ serial = pytest.importorskip("serial")
 from neck_env.rig import protocol as P  # noqa: E402
 from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
 from neck_env.rig.link import RigRefused  # noqa: E402
-from neck_env.rig.sim_neck import SimulatedNeck  # noqa: E402
-from neck_env.rig.simavr import SimavrHarness  # noqa: E402
 
 pytestmark = pytest.mark.hil
 
 
 @pytest.fixture
-def harness(fw_binaries):
+def harness(closed_loop):
     """Factory: a paced harness running the firmware, with the simulator as the neck."""
-    made: list = []
-
-    def start(neck: bool = True) -> SimavrHarness:
-        elf, hil = fw_binaries
-        h = SimavrHarness(elf, hil, speed=1.0)
-        made.append(h)
-        if neck:
-            made.append(SimulatedNeck(h, supply_current_A=7.0, seed=1).start())
-        h.run()
-        return h
-
-    yield start
-    for obj in reversed(made):
-        if isinstance(obj, SimulatedNeck):
-            obj.stop()
-        else:
-            obj.close()
+    return lambda neck=True: closed_loop(7.0, seed=1, neck=neck)[0]
 
 
 def _hostile_bytes(rng: random.Random) -> bytes:
