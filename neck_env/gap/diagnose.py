@@ -390,7 +390,8 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
     # next). Left in, its mean would be blamed on a constant sensor effect (imu_misalignment);
     # so the drift is fitted as a nuisance by every candidate, and reported as unexplained.
     drift_found = None
-    st = rest_drift_stats(data, model.predict_full([nominal.setting()])[0])
+    full_plain = model.predict_full([nominal.setting()])[0]  # also localized below
+    st = rest_drift_stats(data, full_plain)
     if st[1] > UNEXPLAINED_REST_DEG and st[3] > DRIFT_R2:
         drift_found = st
         model.nominal = list(model.nominal) + drift_specs()
@@ -433,19 +434,15 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
             vals = dict(verdict_c.values)
             vals.update(starts2[n])
             pairs.append(effect_candidate(model, [first, n], {}, vals))
-        fitter.run(pairs, max_iter=max_iter)
-        for p in pairs:
-            # the pair against its first member (the verdict so far) and against nominal
-            pair_cmp[p.name] = compare(data, verdict_c.pred, p.pred, hold_mask)
-            pair_cmp[p.name]["vs_nominal"] = compare(data, nominal.pred, p.pred, hold_mask)
-        pairs.sort(key=lambda p: pair_cmp[p.name]["gap_after"])
+        # each pair against its first member (the verdict so far)
+        single = verdict_c
+        pair_cmp = _fit_and_judge_pairs(fitter, data, pairs, lambda p: single, nominal,
+                                        hold_mask, max_iter, significant)
         for p in pairs[:PAIR_TOP]:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s['gap_before']:.3f} -> "
                 f"{s['gap_after']:.3f} deg ({100 * s['reduction']:+.0f} % vs {first}, "
-                f"t = {s['t']:.1f}){'  *' if significant(s) else ''}")
-        for p in pairs:
-            pair_cmp[p.name]["accepted"] = significant(pair_cmp[p.name])
+                f"t = {s['t']:.1f}){'  *' if s['accepted'] else ''}")
         good = [p for p in pairs if pair_cmp[p.name]["accepted"]]
         if good:
             verdict_c = good[0]
@@ -459,23 +456,18 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
                 vals = dict(a.values)
                 vals.update({k: v for k, v in b.values.items() if k.startswith(b.effects[0] + ".")})
                 pairs.append(effect_candidate(model, [a.effects[0], b.effects[0]], {}, vals))
-        fitter.run(pairs, max_iter=max_iter)
-        for p in pairs:
-            a = min((c for c in singles if c.effects[0] in p.effects),
-                    key=lambda c: single_cmp[c.name]["gap_after"])
-            pair_cmp[p.name] = compare(data, a.pred, p.pred, hold_mask)
-            pair_cmp[p.name]["vs_nominal"] = compare(data, nominal.pred, p.pred, hold_mask)
-        pairs.sort(key=lambda p: pair_cmp[p.name]["gap_after"])
+        # each pair against its better member alone; responsible as a pair: significant
+        # against nominal, and better than that member by the F test (both members needed)
+        better = lambda p: min((c for c in singles if c.effects[0] in p.effects),
+                               key=lambda c: single_cmp[c.name]["gap_after"])
+        pair_cmp = _fit_and_judge_pairs(
+            fitter, data, pairs, better, nominal, hold_mask, max_iter,
+            lambda s: significant(s["vs_nominal"]) and s["F"] > s["F_crit"])
         for p in pairs:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s['vs_nominal']['gap_before']:.3f} -> "
                 f"{s['gap_after']:.3f} deg ({100 * s['vs_nominal']['reduction']:+.0f} % vs nominal, "
                 f"F = {s['F']:.2f} vs its better member)")
-        # responsible as a pair: significant against nominal, and better than its better
-        # member alone by the F test (both members needed)
-        for p in pairs:
-            s = pair_cmp[p.name]
-            s["accepted"] = significant(s["vs_nominal"]) and s["F"] > s["F_crit"]
         good = [p for p in pairs if pair_cmp[p.name]["accepted"]]
         if good:
             verdict_c = good[0]
@@ -499,7 +491,7 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
              for c in (final_nominal, final)]
     full_nom, full_cor = model.predict_full(shown)
     # localization of the plain nominal refit: a drift nuisance must not hide where the gap is
-    full_nom_heldout = model.predict_full([nominal_plain.setting()])[0]
+    full_nom_heldout = full_plain
     res_nom = full_residuals(data, full_nom_heldout)
     loc = localize.decompose(res_nom)
     loc["pattern"] = localize.pattern(loc, res_nom)
@@ -541,6 +533,23 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
                      unexplained=unexplained, reasons=reasons,
                      full={"nominal": full_nom, "corrected": full_cor,
                            "nominal_heldout": full_nom_heldout}, timing=tm)
+
+
+def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,
+                         nominal: Candidate, hold_mask: np.ndarray, max_iter: int,
+                         accept) -> dict[str, dict]:
+    """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)`` and
+    with the nominal refit (``"vs_nominal"``), mark ``"accepted"`` by ``accept(comparison)``;
+    sorts ``pairs`` best first and returns the comparisons by name."""
+    fitter.run(pairs, max_iter=max_iter)
+    cmp: dict[str, dict] = {}
+    for p in pairs:
+        c = compare(data, reference(p).pred, p.pred, hold_mask)
+        c["vs_nominal"] = compare(data, nominal.pred, p.pred, hold_mask)
+        c["accepted"] = bool(accept(c))
+        cmp[p.name] = c
+    pairs.sort(key=lambda p: cmp[p.name]["gap_after"])
+    return cmp
 
 
 def _unexplained_tol(data: Prepared, mask: np.ndarray) -> float:

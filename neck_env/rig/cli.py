@@ -150,12 +150,9 @@ def build_parser() -> argparse.ArgumentParser:
 # ---------------------------------------------------------------------------------------------
 
 
-def _agent(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> Agent:
-    """(reset, act, label) for the policy or controller on the command line."""
-    if args.policy is not None:
-        from agents.policy import DeployedPolicy
-
-        pol = DeployedPolicy.load(args.policy)
+def _agent(args: argparse.Namespace, env_kwargs: dict[str, Any], pol=None) -> Agent:
+    """(reset, act, label) for the policy (already loaded) or controller on the command line."""
+    if pol is not None:
         relay = env_kwargs["action_mode"] == "relay"
 
         def act(obs: np.ndarray) -> np.ndarray:
@@ -172,17 +169,6 @@ def _agent(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> Agent:
     return ctrl.reset, ctrl.act, args.controller
 
 
-def _policy_kwargs(path: str) -> dict[str, Any]:
-    meta_path = Path(path).with_suffix(".json")
-    if not meta_path.exists():
-        raise FileNotFoundError(f"deployable policy needs {meta_path} beside {path}")
-    try:
-        meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{meta_path}: not valid JSON ({exc})") from None
-    return dict(meta.get("env_kwargs", {}))
-
-
 def _open_link(port: str):
     from .link import RigLink
 
@@ -192,7 +178,12 @@ def _open_link(port: str):
 def cmd_run(args: argparse.Namespace, out=print) -> int:
     from .hardware_env import HardwareNeckEnv
 
-    trained = _policy_kwargs(args.policy) if args.policy else {}
+    pol = None
+    if args.policy:
+        from agents.policy import DeployedPolicy
+
+        pol = DeployedPolicy.load(args.policy)  # reads the zip and its JSON once
+    trained = pol.env_kwargs if pol is not None else {}
     if args.policy and args.action_mode is not None and args.action_mode != trained.get(
             "action_mode", "current"):
         raise ValueError(f"--action-mode {args.action_mode}: the policy was trained with "
@@ -204,7 +195,7 @@ def cmd_run(args: argparse.Namespace, out=print) -> int:
                   "energy_budget_J": args.budget, "supply_current_A": supply}
     if args.params:
         env_kwargs["params"] = args.params
-    reset_agent, act, label = _agent(args, env_kwargs)
+    reset_agent, act, label = _agent(args, env_kwargs, pol)
     link = _open_link(args.port)
     env = HardwareNeckEnv(link=link, cutoff_C=args.cutoff, thermistors=args.thermistors,
                           ambient_C=args.ambient, record_dir=args.record,
