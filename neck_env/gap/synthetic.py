@@ -52,79 +52,11 @@ from ..params import NeckParams, default_params
 from ..physics import layout as L
 from ..physics.compile import jit
 from ..physics.plant import constants_from_params, initial_state, step_inplace
+from ..experiments import PROTOCOLS, protocol_schedule
 from ..recording import write_meta, write_recording
 from ..sensors import SensorParams, imu_reading
 
 GEN_DT_S = 0.01
-PROTOCOLS = ("mixed", "paper")
-
-
-# -- protocols ------------------------------------------------------------------------------------
-
-def _pulse(n: int, hz: float, muscle: int, amps: float, start: float = 2.0, on: float = 5.0):
-    t = np.arange(n) / hz
-    cur = np.zeros((n, 3))
-    cur[(t >= start - 1e-9) & (t < start + on - 1e-9), muscle] = amps
-    return cur
-
-
-def protocol_schedule(rng: np.random.Generator, protocol: str = "mixed", n_recordings: int = 15,
-                      duration_s: float = 30.0, sample_hz: float = 50.0) -> list[tuple[str, np.ndarray]]:
-    """[(description, commanded currents (n, 3) at the sample times)] in recording order."""
-    n = int(round(duration_s * sample_hz)) + 1
-    t = np.arange(n) / sample_hz
-    out: list[tuple[str, np.ndarray]] = []
-    if protocol == "paper":
-        amps = [4.0, 4.25, 4.5, 4.75, 5.0, 6.0, 7.0, 8.0]
-        combos = [(m, a) for a in amps for m in range(3)]
-        idx = np.sort(rng.choice(len(combos), size=min(n_recordings, len(combos)), replace=False))
-        for k in idx:
-            m, a = combos[k]
-            out.append((f"pulse m{m + 1} {a:g} A 5 s", _pulse(n, sample_hz, m, a)))
-        return out
-    if protocol != "mixed":
-        raise ValueError(f"unknown protocol {protocol!r}; known: {PROTOCOLS}")
-    n_pulse = max(1, round(n_recordings * 0.6))
-    n_seq = max(0, round(n_recordings * 0.2))
-    n_cyc = max(0, n_recordings - n_pulse - n_seq)
-    kinds = ["pulse"] * n_pulse + ["seq"] * n_seq + ["cycle"] * n_cyc
-    kinds = list(rng.permutation(kinds))
-    levels = np.linspace(4.0, 8.0, n_pulse) if n_pulse > 1 else np.array([6.0])
-    levels = rng.permutation(levels)
-    muscles = rng.permutation(np.arange(n_pulse) % 3)
-    ip = 0
-    for kind in kinds:
-        if kind == "pulse":
-            m, a = int(muscles[ip]), float(round(levels[ip] * 4) / 4)
-            ip += 1
-            out.append((f"pulse m{m + 1} {a:g} A 5 s", _pulse(n, sample_hz, m, a)))
-        elif kind == "seq":
-            supply = float(rng.choice([5.5, 6.0, 6.5, 7.0]))
-            cur = np.zeros((n, 3))
-            on_time = np.zeros(3)
-            tk = 2.0
-            states = [(0,), (1,), (2,), (0, 1), (1, 2), (0, 2), ()]
-            desc = []
-            while tk < 16.0:
-                d = float(rng.uniform(2.0, 3.5))
-                st = states[int(rng.integers(len(states)))]
-                st = tuple(k for k in st if on_time[k] + d <= 7.0)
-                sel = (t >= tk - 1e-9) & (t < tk + d - 1e-9)
-                for k in st:
-                    cur[sel, k] = supply
-                    on_time[k] += d
-                desc.append("".join(str(k + 1) for k in st) or "-")
-                tk += d
-            out.append((f"relay sequence {supply:g} A [{' '.join(desc)}]", cur))
-        else:
-            m = int(rng.integers(3))
-            a = float(rng.choice([5.0, 5.5, 6.0]))
-            cur = np.zeros((n, 3))
-            for c in range(3):
-                s = 2.0 + 7.0 * c
-                cur[(t >= s - 1e-9) & (t < s + 3.0 - 1e-9), m] = a
-            out.append((f"cycles m{m + 1} {a:g} A 3 s on / 4 s off x3", cur))
-    return out
 
 
 # -- sensors ---------------------------------------------------------------------------------------

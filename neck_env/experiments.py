@@ -1,0 +1,201 @@
+"""The recording protocol the sim-to-real diagnosis expects: one definition for every user of it.
+
+The synthetic generators (``neck_env.gap.synthetic``, ``neck_env.gap.independent``), the rig's
+``python -m neck_env.rig protocol`` and ``docs/gap.md`` all take their experiments from here, so
+what a user records on the bench is what the diagnosis was checked on.
+
+A protocol is a list of :class:`Recording`: each a relay schedule at **one** supply current (the
+rig switches a bench supply through relays, so a recording never needs two current levels), a
+duration, and the rest it must start from. What each kind of recording pins down:
+
+=================  ======================================================================  ==========================
+kind               what is run                                                             what it identifies
+=================  ======================================================================  ==========================
+``pulse``          one muscle on for 5 s from t = 2 s, then cooling to the end (the        onset timing (A_s'), the
+                   paper's Table 1 / Fig. 7 experiment) at 4-8 A, every muscle             current sweep (C_A, gamma_L),
+                                                                                           per-muscle differences
+``sequence``       relays switched every 2-3.5 s among single muscles and pairs for         coupling of muscles,
+                   ~14 s at one supply current, then cooling                               antagonist pre-warming, phi
+``cycles``         one muscle 3 s on / 4 s off, three times                                 history (partial-transformation
+                                                                                           memory), fatigue, creep
+``long_cool``      one muscle at 7 A for 5 s, then a 55 s cooling tail                      convection h (and whether h
+                                                                                           depends on temperature)
+=================  ======================================================================  ==========================
+
+Protocols:
+
+* ``mixed`` (default, 15 x 30 s): 9 pulses, 3 sequences, 3 cycle recordings, shuffled with the
+  seed (the order matters only for effects that build up over use).
+* ``paper``: the paper's own 5 s pulses (4-5 A of its Fig. 7, 6-8 A of its Table 1).
+* ``rig``: ``mixed`` followed by two ``long_cool`` recordings (60 s): what the rig should record;
+  the long tails separate a draft or a temperature-dependent h from a plain recalibration of h.
+
+Every recording must start **at rest**: upright (tilt back at its rest reading) with the springs
+at ambient. ``REST`` says how close is close enough; the rig waits for it, the diagnosis checks it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Recording", "RestCriterion", "REST", "PROTOCOLS", "diagnosis_protocol",
+           "protocol_schedule"]
+
+PROTOCOLS = ("mixed", "paper", "rig")
+PULSE_START_S = 2.0
+PULSE_ON_S = 5.0
+
+
+@dataclass(frozen=True)
+class RestCriterion:
+    """When a neck counts as at rest, before a recording starts."""
+
+    tilt_deg: float = 0.6  # tilt within this of the rest (upright) reading
+    temperature_K: float = 3.0  # every spring within this of ambient
+    settle_s: float = 3.0  # ... held for this long (the filter and a slow creep settle)
+    timeout_s: float = 900.0  # give up waiting after this (a stuck or hot neck is a fault)
+
+
+REST = RestCriterion()
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One recording of a protocol: relay segments at one supply current.
+
+    ``segments`` are ``(t_on_s, t_off_s, muscles)`` with 0-based muscle indices; a relay is on
+    for ``t_on_s <= t < t_off_s``. ``name`` is stable across runs (the rig resumes by it)."""
+
+    name: str
+    kind: str
+    description: str
+    supply_A: float
+    duration_s: float
+    segments: tuple[tuple[float, float, tuple[int, ...]], ...] = field(default_factory=tuple)
+
+    def currents(self, t_s: np.ndarray) -> np.ndarray:
+        """Commanded currents (n, 3) at times ``t_s`` (A; the supply while a relay is on)."""
+        t = np.asarray(t_s, dtype=float)
+        cur = np.zeros((t.shape[0], 3))
+        for t_on, t_off, muscles in self.segments:
+            sel = (t >= t_on - 1e-9) & (t < t_off - 1e-9)
+            for m in muscles:
+                cur[sel, m] = self.supply_A
+        return cur
+
+    def relays_at(self, t_s: float) -> tuple[bool, bool, bool]:
+        """Which relays are commanded on at time ``t_s``."""
+        on = [False, False, False]
+        for t_on, t_off, muscles in self.segments:
+            if t_on - 1e-9 <= t_s < t_off - 1e-9:
+                for m in muscles:
+                    on[m] = True
+        return tuple(on)  # type: ignore[return-value]
+
+    @property
+    def on_time_s(self) -> np.ndarray:
+        """Total commanded on-time of each muscle (s)."""
+        out = np.zeros(3)
+        for t_on, t_off, muscles in self.segments:
+            for m in muscles:
+                out[m] += t_off - t_on
+        return out
+
+    @property
+    def longest_on_s(self) -> float:
+        """Longest continuous on-time of any relay (s): what the firmware's on-time cap sees."""
+        best = 0.0
+        for m in range(3):
+            spans = sorted((a, b) for a, b, ms in self.segments if m in ms)
+            run_start, run_end = None, None
+            for a, b in spans:
+                if run_end is not None and a <= run_end + 1e-9:
+                    run_end = max(run_end, b)
+                else:
+                    run_start, run_end = a, b
+                best = max(best, run_end - run_start)
+        return best
+
+
+def _pulse(name: str, muscle: int, amps: float, duration_s: float, on_s: float = PULSE_ON_S,
+           kind: str = "pulse") -> Recording:
+    seg = ((PULSE_START_S, PULSE_START_S + on_s, (muscle,)),)
+    return Recording(name, kind, f"pulse m{muscle + 1} {amps:g} A {on_s:g} s", float(amps),
+                     float(duration_s), seg)
+
+
+def diagnosis_protocol(seed: int | np.random.Generator = 0, protocol: str = "mixed",
+                       n_recordings: int = 15, duration_s: float = 30.0) -> list[Recording]:
+    """The protocol's recordings, in recording order (the seed shuffles and draws levels)."""
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {protocol!r}; known: {PROTOCOLS}")
+    if n_recordings < 1 or not duration_s > PULSE_START_S + PULSE_ON_S:
+        raise ValueError(f"a protocol needs >= 1 recording longer than "
+                         f"{PULSE_START_S + PULSE_ON_S:g} s (got {n_recordings}, {duration_s} s)")
+    out: list[Recording] = []
+    width = max(2, len(str(n_recordings + (2 if protocol == "rig" else 0))))
+    nm = lambda: f"rec_{len(out) + 1:0{width}d}"
+    if protocol == "paper":
+        amps = [4.0, 4.25, 4.5, 4.75, 5.0, 6.0, 7.0, 8.0]
+        combos = [(m, a) for a in amps for m in range(3)]
+        idx = np.sort(rng.choice(len(combos), size=min(n_recordings, len(combos)), replace=False))
+        for k in idx:
+            m, a = combos[k]
+            out.append(_pulse(nm(), m, a, duration_s))
+        return out
+    # The draws below keep their order: a seed gives the same datasets as earlier versions.
+    n_pulse = max(1, round(n_recordings * 0.6))
+    n_seq = max(0, round(n_recordings * 0.2))
+    n_cyc = max(0, n_recordings - n_pulse - n_seq)
+    kinds = ["pulse"] * n_pulse + ["seq"] * n_seq + ["cycle"] * n_cyc
+    kinds = list(rng.permutation(kinds))
+    levels = np.linspace(4.0, 8.0, n_pulse) if n_pulse > 1 else np.array([6.0])
+    levels = rng.permutation(levels)
+    muscles = rng.permutation(np.arange(n_pulse) % 3)
+    ip = 0
+    for kind in kinds:
+        if kind == "pulse":
+            m, a = int(muscles[ip]), float(round(levels[ip] * 4) / 4)
+            ip += 1
+            out.append(_pulse(nm(), m, a, duration_s))
+        elif kind == "seq":
+            supply = float(rng.choice([5.5, 6.0, 6.5, 7.0]))
+            on_time = np.zeros(3)
+            tk = 2.0
+            states = [(0,), (1,), (2,), (0, 1), (1, 2), (0, 2), ()]
+            segs, desc = [], []
+            while tk < 16.0:
+                d = float(rng.uniform(2.0, 3.5))
+                st = states[int(rng.integers(len(states)))]
+                st = tuple(k for k in st if on_time[k] + d <= 7.0)
+                if st:
+                    segs.append((tk, tk + d, st))
+                for k in st:
+                    on_time[k] += d
+                desc.append("".join(str(k + 1) for k in st) or "-")
+                tk += d
+            out.append(Recording(nm(), "sequence", f"relay sequence {supply:g} A [{' '.join(desc)}]",
+                                 supply, float(duration_s), tuple(segs)))
+        else:
+            m = int(rng.integers(3))
+            a = float(rng.choice([5.0, 5.5, 6.0]))
+            segs = tuple((2.0 + 7.0 * c, 5.0 + 7.0 * c, (m,)) for c in range(3))
+            out.append(Recording(nm(), "cycles", f"cycles m{m + 1} {a:g} A 3 s on / 4 s off x3",
+                                 a, float(duration_s), segs))
+    if protocol == "rig":
+        for m in (0, 1):
+            out.append(_pulse(nm(), m, 7.0, max(60.0, duration_s), kind="long_cool"))
+    return out
+
+
+def protocol_schedule(rng: np.random.Generator, protocol: str = "mixed", n_recordings: int = 15,
+                      duration_s: float = 30.0, sample_hz: float = 50.0) -> list[tuple[str, np.ndarray]]:
+    """[(description, commanded currents (n, 3) at the sample times)] in recording order."""
+    out = []
+    for rec in diagnosis_protocol(rng, protocol, n_recordings, duration_s):
+        n = int(round(rec.duration_s * sample_hz)) + 1
+        out.append((rec.description, rec.currents(np.arange(n) / sample_hz)))
+    return out
