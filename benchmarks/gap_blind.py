@@ -88,9 +88,14 @@ def cases(quick: bool) -> list[tuple[list[str], int]]:
     return out
 
 
-def run_case(effects: list[str], seed: int, root: Path, hard: bool) -> dict:
+def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: str = "default",
+             generator: str = "synthetic") -> dict:
     ds = root / f"ds_{seed}"
-    truth = generate(ds, effects, seed=seed, hard=hard)
+    if generator == "independent":
+        from neck_env.gap.independent import generate as generate_independent
+        truth = generate_independent(ds, effects, seed=seed, baseline=baseline)
+    else:
+        truth = generate(ds, effects, seed=seed, hard=hard, baseline=baseline)
     rep_path = root / f"report_{seed}.json"
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()):
@@ -205,14 +210,22 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--hard", action="store_true", help="rigs further from the model")
+    ap.add_argument("--baseline", choices=("default", "wide"), default="default",
+                    help="wide: every rig's baseline drawn far from the defaults")
+    ap.add_argument("--generator", choices=("synthetic", "independent"), default="synthetic",
+                    help="independent: the structurally independent rig (neck_env.gap.independent)")
+    ap.add_argument("--only", default=None, help="comma-separated seeds to run (debugging)")
     ap.add_argument("--out", default=None, help="keep datasets, reports and results.json here")
     args = ap.parse_args(argv)
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="gap_blind_"))
     root.mkdir(parents=True, exist_ok=True)
     results = []
     try:
+        only = {int(x) for x in args.only.split(",")} if args.only else None
         for effects, seed in cases(args.quick):
-            r = run_case(effects, seed, root, args.hard)
+            if only is not None and seed not in only:
+                continue
+            r = run_case(effects, seed, root, args.hard, args.baseline, args.generator)
             results.append(r)
             rep = r["report"]
             print(f"seed {seed}: truth {sorted(r['truth']) or '-'} -> verdict {rep.get('verdict')} "

@@ -29,10 +29,15 @@ G_M_S2 = 9.81
 
 @dataclass(frozen=True)
 class EffectParam:
-    low: float
+    low: float  # the range magnitudes are drawn from (a typical rig with the effect)
     high: float
     unit: str
     doc: str
+    valid_high: float | None = None  # accepted up to here (e.g. up to "off"); default: high
+
+    @property
+    def upper(self) -> float:
+        return self.high if self.valid_high is None else self.valid_high
 
 
 @dataclass(frozen=True)
@@ -44,10 +49,13 @@ class Effect:
     in_catalogue: bool = True
     doc: str = ""
     defaults: Mapping[str, float] = field(default_factory=dict)  # a typical magnitude
+    # Parameters that ``sample`` holds at their default (e.g. a draft's onset: 0 in an episode).
+    held: tuple[str, ...] = ()
 
     def sample(self, rng: np.random.Generator) -> dict[str, float]:
-        """Parameters drawn uniformly within their ranges."""
-        return {k: float(rng.uniform(p.low, p.high)) for k, p in self.params.items()}
+        """Parameters drawn uniformly within their ranges (``held`` ones at their default)."""
+        return {k: (float(self.defaults[k]) if k in self.held else float(rng.uniform(p.low, p.high)))
+                for k, p in self.params.items()}
 
     def check(self, values: Mapping[str, float]) -> dict[str, float]:
         """Validate a parameter dict: known names, finite, within range (raise ValueError)."""
@@ -60,9 +68,9 @@ class Effect:
             p = self.params[k]
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ValueError(f"effect {self.name}: {k} = {v!r} must be a finite number")
-            if not (p.low - 1e-12 <= v <= p.high + 1e-12):
+            if not (p.low - 1e-12 <= v <= p.upper + 1e-12):
                 raise ValueError(f"effect {self.name}: {k} = {v} outside its range "
-                                 f"[{p.low}, {p.high}] {p.unit}")
+                                 f"[{p.low}, {p.upper}] {p.unit}")
             out[k] = float(v)
         missing = set(self.params) - set(out)
         if missing:
@@ -70,9 +78,10 @@ class Effect:
         return out
 
 
-def _effect(name, kind, signature, params, defaults, doc="", in_catalogue=True) -> Effect:
+def _effect(name, kind, signature, params, defaults, doc="", in_catalogue=True,
+            held=()) -> Effect:
     return Effect(name, kind, {k: EffectParam(*v) for k, v in params.items()}, signature,
-                  in_catalogue, doc, defaults)
+                  in_catalogue, doc, defaults, tuple(held))
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in [
@@ -106,10 +115,12 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
         "high commanded currents act like lower ones (the supply runs out of compliance "
         "voltage as the springs' resistance loads it); low currents unaffected; heating rate "
         "saturates with command",
-        {"compliance_V": (2.5, 6.0, "V", "supply voltage limit"),
+        {"compliance_V": (2.5, 6.0, "V", "supply voltage limit (accepted up to 40 V: above "
+                          "~8 V no current is limited, the effect is off)", 40.0),
          "wiring_ohm": (0.05, 0.3, "ohm", "leads and relay contact per muscle")},
         {"compliance_V": 4.0, "wiring_ohm": 0.1},
-        "Commanded currents are what the host knows; what flows is min(I, V / R_load)."),
+        "Commanded currents are what the host knows; what flows is min(I, V / R_load).",
+        held=()),
     _effect(
         "actuation_delay", "actuation",
         "every response (theta, temperature) starts late by the same time after a command "
@@ -126,12 +137,18 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
         "Heat exchanged between muscles through the head mount and air."),
     _effect(
         "convection_change", "plant",
-        "all heating and cooling time constants change together (a draft); with a "
-        "temperature-dependent h, cooling is fast when hot and slow near ambient",
-        {"gain": (0.4, 2.5, "-", "h multiplier"),
-         "tcoef_per_K": (0.0, 0.01, "1/K", "relative change of h per K above ambient")},
-        {"gain": 1.5, "tcoef_per_K": 0.0},
-        "A draft, or a temperature-dependent h."),
+        "what no constant convection coefficient produces: cooling fast when hot and slow near "
+        "ambient, less heating at high currents than at low ones (h grows with temperature), or "
+        "every time constant changing from one recording on (a draft starts). A constant gain "
+        "from the start is the same as a different h: the diagnosis calls it a recalibration "
+        "(ambiguous with h), not an effect",
+        {"gain": (0.4, 2.5, "-", "h multiplier while the draft blows"),
+         "tcoef_per_K": (0.0, 0.012, "1/K", "relative change of h per K above ambient"),
+         "onset_s": (0.0, 3600.0, "s", "recorded time (dataset clock, recordings back to back) "
+                     "at which the draft starts; environments apply it from the episode start")},
+        {"gain": 1.5, "tcoef_per_K": 0.0, "onset_s": 0.0},
+        "A draft that starts during the experiments, or a temperature-dependent h.",
+        held=("onset_s",)),
     _effect(
         "sma_fatigue", "plant",
         "bending amplitude falls from recording to recording as the springs cycle; "

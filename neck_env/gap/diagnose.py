@@ -34,7 +34,7 @@ from .. import effects as fx
 from ..recording import Dataset
 from . import localize
 from .fit import Candidate, Fitter, covariance
-from .model import (EFFECT_SPECS, REPLACES, Model, ParamSpec, Prediction, Prepared,
+from .model import (DRAFT_FROM, EFFECT_SPECS, switched_off, REPLACES, SCANNED, Model, ParamSpec, Prediction, Prepared,
                     catalogue_effects, clip_to_catalogue, drift_specs, prepare, residual_parts, tilt_vec,
                     wrap180)
 
@@ -52,6 +52,38 @@ UNEXPLAINED_REST_DEG = 0.3  # rest-offset changing between recordings by more th
 DRIFT_R2 = 0.6  # ... along a straight line in recorded time: a drift (fitted as a nuisance)
 SCAN_SENSOR = 96  # scan points for sensor-only effects (no simulation needed)
 SCAN_GRID = {1: 5, 2: 3}  # per-axis scan points for plant effects with 1 or 2 parameters
+
+
+AMBIG_SIZE_DEG = 0.3  # an effect doing at least this much (RMS tilt, on vs off) ...
+AMBIG_SHIFT_SIGMA = 0.5  # ... while the baseline moved this many prior sigmas to make room
+
+# Which recording separates an effect from the baseline shift that mimics it.
+SEPARATE = {
+    "head_payload": "a payload and a softer backbone bend the neck alike (the head's gravity "
+                    "moment grows with the tilt as the elastic moment does): weigh the head, or "
+                    "repeat a few pulses with a known mass added to it",
+    "convection_change": "a draft through every recording is a larger convection coefficient: "
+                         "record long cooling tails (the 'rig' protocol's long_cool) with "
+                         "thermistors, or repeat a pulse with the suspected draft removed",
+    "sma_fatigue": "springs that lost recoverable strain and springs that never had it look "
+                   "alike unless the same pulse is repeated through the session: record the "
+                   "same pulse at its start and at its end",
+    "thermal_coupling": "heat drained into the neighbours looks like extra convection unless "
+                        "their temperatures are seen: fit thermistors (T1..T3)",
+    "supply_limit": "a supply that cannot drive the top currents and springs that heat less "
+                    "per ampere both flatten the current sweep: log the measured current "
+                    "(i1_meas..) or the supply voltage at 8 A",
+    "backbone_viscoelasticity": "creep and a stiffer or softer backbone differ only in time: "
+                                "hold a pulse longer (10 s) and watch the tilt keep drifting",
+    "backbone_friction": "a dead band and a later transformation onset both delay the first "
+                         "motion: pulses at 4 A and 4.5 A (low currents) and a long cooling tail "
+                         "(a residual tilt stays) separate them",
+    "actuation_delay": "a delay and a later onset of transformation both start the bend late: "
+                       "the temperature (thermistors) and the start of cooling move with a "
+                       "delay, not with the transformation temperatures",
+    "imu_misalignment": "a yawed IMU and muscles at other azimuths read the same: check the "
+                        "muscle azimuths in meta.json",
+}
 
 
 # --------------------------------------------------------------------------------------------
@@ -196,9 +228,11 @@ def effect_candidate(model: Model, names: Sequence[str], nominal_values: dict[st
             specs.append(s)
     for n in names:
         specs.extend(EFFECT_SPECS[n])
-    c = Candidate("+".join(names) if names else "nominal", tuple(names), specs, fixed)
     vals = dict(nominal_values)
     vals.update(effect_values or {})
+    if "convection_change" in names:
+        fixed[DRAFT_FROM] = float(vals.get(DRAFT_FROM, model.data.n_rec))
+    c = Candidate("+".join(names) if names else "nominal", tuple(names), specs, fixed)
     c.u = np.array([s.to_unit(min(max(vals.get(s.key, s.start), s.lower), s.upper))
                     for s in specs])
     return c
@@ -217,6 +251,83 @@ def scan_points(specs: Sequence[ParamSpec], rng: np.random.Generator) -> np.ndar
     return grid
 
 
+DRAFT_GAINS = (0.45, 0.7, 1.5, 2.2)
+DRAFT_ONSETS = 24  # recording boundaries tried for the start of a draft (spread over the dataset)
+
+
+def _scan_values(name: str, specs: Sequence[ParamSpec], rng: np.random.Generator,
+                 n_rec: int) -> list[dict[str, float]]:
+    """Effect values to scan: the generic grid, and for a convection change its two forms --
+    h growing with temperature, and a draft starting at a recording boundary (discrete, so
+    scanned here and held fixed by the fit)."""
+    if name != "convection_change":
+        return [{s.key: s.from_unit(float(x)) for s, x in zip(specs, u)}
+                for u in scan_points(specs, rng)]
+    out = [{"convection_change.tcoef_per_K": k, "convection_change.gain": 1.0,
+            DRAFT_FROM: float(n_rec)} for k in (0.0, 0.004, 0.008, 0.012)]
+    if n_rec >= 3:
+        onsets = np.unique(np.linspace(1, n_rec - 1, min(DRAFT_ONSETS, n_rec - 1)).round().astype(int))
+        for first in onsets:
+            for g in DRAFT_GAINS:
+                out.append({"convection_change.tcoef_per_K": 0.0, "convection_change.gain": g,
+                            DRAFT_FROM: float(first)})
+    return out
+
+
+def settle_draft(model: Model, cand: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray) -> None:
+    """Place a fitted draft's start among the boundaries the fitting data cannot tell apart.
+
+    A draft starting at recording k or at k + 1 fits the fitting recordings equally when
+    recording k is held out; which one holds is a property of the held-out recording itself
+    (one bit per recording, not a fitted shape), so the held-out data settle it."""
+    if DRAFT_FROM not in cand.fixed or abs(cand.values.get("convection_change.gain", 1.0) - 1) < 1e-3:
+        return
+    first = int(round(cand.fixed[DRAFT_FROM]))
+    R = model.data.n_rec
+    lo = first
+    while lo - 1 >= 1 and hold_rec[lo - 1]:
+        lo -= 1
+    hi = first
+    while hi < R and hold_rec[hi]:
+        hi += 1
+    options = [k for k in range(lo, hi + 1) if k != first]
+    if not options:
+        return
+    settings = [dict(cand.setting(), **{DRAFT_FROM: float(k)}) for k in options]
+    preds = model.predict(settings)
+    e = lambda p: float(combined_err2(model.data, p)[hold_mask].mean())
+    best = min(zip(options, preds), key=lambda kp: e(kp[1]))
+    if e(best[1]) < e(cand.pred):
+        cand.fixed[DRAFT_FROM] = float(best[0])
+        cand.pred = best[1]
+
+
+def fit_baseline(model: Model, fitter: Fitter, rng: np.random.Generator, max_iter: int,
+                 n_scan: int = 48, n_starts: int = 4) -> Candidate:
+    """This rig's baseline, found globally: a Latin-hypercube scan of the scanned plant
+    parameters over their whole plausible ranges (one batched simulation), then lockstep
+    Levenberg-Marquardt from the calibrated defaults and the best scan points; the lowest
+    cost wins. A rig far from the defaults has its own basin (fast cooling with a low A_s, ...)
+    that a fit started at the defaults does not reach."""
+    specs = list(model.nominal)
+    keys = [s.key for s in specs]
+    k = len(SCANNED)
+    lhs = (rng.permuted(np.tile(np.arange(n_scan), (k, 1)), axis=1).T + rng.random((n_scan, k))) / n_scan
+    base = Candidate("nominal", (), specs)
+    trial_u = []
+    for row in lhs:
+        u = base.u.copy()
+        for j, key in enumerate(SCANNED):
+            u[keys.index(key)] = 0.02 + 0.96 * row[j]
+        trial_u.append(u)
+    preds = model.predict([base.setting(u) for u in trial_u])
+    costs = [fitter.cost_of(base, u, fitter.data_res(p)) for u, p in zip(trial_u, preds)]
+    order = np.argsort(costs)[:n_starts]
+    cands = [base] + [Candidate("nominal", (), specs, u=trial_u[i].copy()) for i in order]
+    fitter.run(cands, max_iter=max_iter)
+    return min(cands, key=lambda c: c.cost)
+
+
 def scan_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
                 base_effects: list[str], names: Sequence[str],
                 rng: np.random.Generator) -> dict[str, dict[str, float]]:
@@ -226,12 +337,14 @@ def scan_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
     for name in names:
         specs = EFFECT_SPECS[name]
         cand = effect_candidate(model, base_effects + [name], base_values)
-        for u in scan_points(specs, rng):
-            vals = {s.key: s.from_unit(float(x)) for s, x in zip(specs, u)}
+        for vals in _scan_values(name, specs, rng, model.data.n_rec):
             merged = {**base_values, **vals}
-            settings.append(cand.setting(np.array(
+            st = cand.setting(np.array(
                 [s.to_unit(min(max(merged.get(s.key, s.start), s.lower), s.upper))
-                 for s in cand.specs])))
+                 for s in cand.specs]))
+            if DRAFT_FROM in vals:
+                st[DRAFT_FROM] = vals[DRAFT_FROM]
+            settings.append(st)
             owners.append((name, vals))
     preds = model.predict(settings)
     best: dict[str, tuple[float, dict]] = {}
@@ -240,6 +353,56 @@ def scan_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
         if name not in best or cost < best[name][0]:
             best[name] = (cost, vals)
     return {n: v for n, (c, v) in best.items()}
+
+
+def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequence[Candidate],
+              single_cmp: dict[str, dict], verdict: Sequence[str]) -> list[dict]:
+    """Effects that a shift of the baseline explains about as well (design.md 2.3 ``ambiguous``).
+
+    An effect is listed when its own fit makes it do something substantial (its predicted tilt
+    with the effect on vs switched off differs by >= ``AMBIG_SIZE_DEG`` RMS on the fitting
+    recordings), yet it is not significant against the nominal refit -- because the nominal
+    refit moved baseline parameters (by >= ``AMBIG_SHIFT_SIGMA`` prior sigmas) to produce the
+    same recordings. Those parameters are its ``with``; the note says which recording would
+    separate the two. Effects that do nothing (fitted off) or that the data favour are not
+    listed."""
+    cands = [c for c in singles if c.effects[0] not in verdict and not significant(single_cmp[c.name])]
+    if not cands:
+        return []
+    offs = model.predict([switched_off(c.setting()) for c in cands])
+    m = fitter.mask
+    out = []
+    for c, off in zip(cands, offs):
+        name = c.effects[0]
+        size = float(np.sqrt(np.mean((c.pred.tilt_x - off.tilt_x)[m] ** 2
+                                     + (c.pred.tilt_y - off.tilt_y)[m] ** 2)))
+        if size < AMBIG_SIZE_DEG:
+            continue
+        moved = []
+        for spec in model.nominal:
+            if spec.prior_sigma is None or spec.key.startswith("drift_") or spec.key not in c.values:
+                continue
+            a, b = nominal.values[spec.key], c.values[spec.key]
+            d = abs(spec.prior_residual(a) - spec.prior_residual(b))
+            if d >= AMBIG_SHIFT_SIGMA:
+                moved.append((d, spec.key, a, b))
+        if not moved:
+            continue
+        moved.sort(reverse=True)
+        cmp = single_cmp[c.name]
+        shifts = ", ".join(f"{k} {a:.3g} (nominal refit) vs {b:.3g} (with the effect)"
+                           for _, k, a, b in moved[:2])
+        out.append({
+            "effect": name, "with": [k for _, k, _, _ in moved[:2]],
+            "heldout_gap_nominal": cmp["gap_before"], "heldout_gap_effect": cmp["gap_after"],
+            "effect_size_deg": size,
+            "note": (f"{name} (it moves the tilt by {size:.2f} deg RMS) and a baseline shift "
+                     f"({shifts}) explain the recordings about equally: held-out gap "
+                     f"{cmp['gap_before']:.3f} vs {cmp['gap_after']:.3f} deg. "
+                     f"{SEPARATE.get(name, '')}"),
+        })
+    out.sort(key=lambda a: -a["effect_size_deg"])
+    return out
 
 
 @dataclass
@@ -264,6 +427,7 @@ class Diagnosis:
     reasons: list[str]
     full: dict  # full-rate predictions: {"nominal": [...], "corrected": [...]}
     timing: dict = field(default_factory=dict)
+    ambiguous: list = field(default_factory=list)
 
 
 def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
@@ -381,8 +545,8 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
         f"{'; temperatures recorded' if data.has_T else ''}")
 
     # 2. nominal refit
-    nominal = Candidate("nominal", (), list(model.nominal))
-    fitter.run([nominal], max_iter=max_iter)
+    rng = np.random.default_rng(0)
+    nominal = fit_baseline(model, fitter, rng, max(max_iter, 20))
     tm["nominal_fit_s"] = time.perf_counter() - t0
     nominal_plain = nominal
     # A reading at rest that drifts steadily through the dataset is something no catalogued
@@ -404,11 +568,12 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
         f"({nominal.iters} iterations)")
 
     # 3. scan + lockstep fits of every catalogued effect
-    rng = np.random.default_rng(0)
     starts = scan_starts(model, fitter, nom_vals, [], list(fx.CATALOGUE), rng)
     tm["scan_s"] = time.perf_counter() - t0 - sum(tm.values())
     singles = [effect_candidate(model, [n], nom_vals, starts[n]) for n in fx.CATALOGUE]
     fitter.run(singles, max_iter=max_iter)
+    for c in singles:
+        settle_draft(model, c, hold_rec, hold_mask)
     tm["single_fits_s"] = time.perf_counter() - t0 - sum(tm.values())
     single_cmp = {c.name: compare(data, nominal.pred, c.pred, hold_mask) for c in singles}
     singles.sort(key=lambda c: single_cmp[c.name]["gap_after"])
@@ -429,15 +594,15 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
         verdict_c = sig[0]
         first = verdict_c.effects[0]
         others = [n for n in fx.CATALOGUE if n != first]
-        starts2 = scan_starts(model, fitter, verdict_c.values, [first], others, rng)
+        starts2 = scan_starts(model, fitter, verdict_c.setting(), [first], others, rng)
         for n in others:
-            vals = dict(verdict_c.values)
+            vals = dict(verdict_c.setting())
             vals.update(starts2[n])
             pairs.append(effect_candidate(model, [first, n], {}, vals))
         # each pair against its first member (the verdict so far)
         single = verdict_c
         pair_cmp = _fit_and_judge_pairs(fitter, data, pairs, lambda p: single, nominal,
-                                        hold_mask, max_iter, significant)
+                                        hold_rec, hold_mask, max_iter, significant)
         for p in pairs[:PAIR_TOP]:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s['gap_before']:.3f} -> "
@@ -453,7 +618,7 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
         for i in range(len(top)):
             for j in range(i + 1, len(top)):
                 a, b = top[i], top[j]
-                vals = dict(a.values)
+                vals = dict(a.setting())
                 vals.update({k: v for k, v in b.values.items() if k.startswith(b.effects[0] + ".")})
                 pairs.append(effect_candidate(model, [a.effects[0], b.effects[0]], {}, vals))
         # each pair against its better member alone; responsible as a pair: significant
@@ -461,7 +626,7 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
         better = lambda p: min((c for c in singles if c.effects[0] in p.effects),
                                key=lambda c: single_cmp[c.name]["gap_after"])
         pair_cmp = _fit_and_judge_pairs(
-            fitter, data, pairs, better, nominal, hold_mask, max_iter,
+            fitter, data, pairs, better, nominal, hold_rec, hold_mask, max_iter,
             lambda s: significant(s["vs_nominal"]) and s["F"] > s["F_crit"])
         for p in pairs:
             s = pair_cmp[p.name]
@@ -473,11 +638,14 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
             verdict_c = good[0]
     tm["pairs_s"] = time.perf_counter() - t0 - sum(tm.values())
     verdict = list(verdict_c.effects)
+    ambiguous = ambiguity(model, fitter, nominal, singles, single_cmp, verdict)
+    for a in ambiguous:
+        say(f"  ambiguous: {a['note']}")
 
     # 5. final fits on all recordings (nominal and corrected), uncertainties, localization
     all_fitter = Fitter(model, np.ones_like(fit_mask))
     final_nominal = Candidate("nominal", (), list(model.nominal), u=nominal.u.copy())
-    final = (effect_candidate(model, verdict, {}, verdict_c.values) if verdict
+    final = (effect_candidate(model, verdict, {}, verdict_c.setting()) if verdict
              else Candidate("nominal", (), list(model.nominal), u=nominal.u.copy()))
     all_fitter.run([final_nominal, final] if verdict else [final_nominal], max_iter=max_iter)
     if not verdict:
@@ -532,16 +700,19 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
                      calibration=calibration, localization=loc, localization_remaining=loc_rem,
                      unexplained=unexplained, reasons=reasons,
                      full={"nominal": full_nom, "corrected": full_cor,
-                           "nominal_heldout": full_nom_heldout}, timing=tm)
+                           "nominal_heldout": full_nom_heldout}, timing=tm,
+                     ambiguous=ambiguous)
 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,
-                         nominal: Candidate, hold_mask: np.ndarray, max_iter: int,
-                         accept) -> dict[str, dict]:
+                         nominal: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray,
+                         max_iter: int, accept) -> dict[str, dict]:
     """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)`` and
     with the nominal refit (``"vs_nominal"``), mark ``"accepted"`` by ``accept(comparison)``;
     sorts ``pairs`` best first and returns the comparisons by name."""
     fitter.run(pairs, max_iter=max_iter)
+    for p in pairs:
+        settle_draft(fitter.model, p, hold_rec, hold_mask)
     cmp: dict[str, dict] = {}
     for p in pairs:
         c = compare(data, reference(p).pred, p.pred, hold_mask)

@@ -13,7 +13,7 @@ import numpy as np
 
 from .. import effects as fx
 from . import diagnose as D
-from .model import catalogue_effects, clip_to_catalogue
+from .model import clip_to_catalogue
 
 REPORT_VERSION = 1
 
@@ -52,7 +52,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         g = D.gap_stats(data, c.pred, hold)
         effects.append({
             "name": c.name,
-            "params": {k: _r(v, 6) for k, v in catalogue_effects(c.values, [c.name])[c.name].items()},
+            "params": {k: _r(v, 6) for k, v in dg.model.effects_of(c.setting(), [c.name])[c.name].items()},
             "heldout_gap_before": _r(s["gap_before"]),
             "heldout_gap_after": _r(s["gap_after"]),
             "heldout_reduction": _r(s["reduction"]),
@@ -72,7 +72,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         pairs.append({
             "name": p.name, "effects": list(p.effects),
             "params": {n: {k: _r(v, 6) for k, v in vals.items()}
-                       for n, vals in catalogue_effects(p.values, p.effects).items()},
+                       for n, vals in dg.model.effects_of(p.setting(), p.effects).items()},
             "heldout_gap_before": _r(s["vs_nominal"]["gap_before"]),
             "heldout_gap_after": _r(s["gap_after"]),
             "heldout_gap_best_single": _r(s["gap_before"]),
@@ -86,7 +86,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
     loc_rem = [{"signal": it["signal"], "phase": it["phase"], "muscle": it["muscle"],
                 "share": _r(it["share"]), "time_fraction": _r(it["time_fraction"]),
                 "rms": _r(it["rms"])} for it in dg.localization_remaining["items"]]
-    corrected_effects = catalogue_effects(dg.final.values, dg.verdict)
+    corrected_effects = dg.model.effects_of(dg.final.setting(), dg.verdict)
     fc = dg.final_cmp
     report = {
         "tool": "neck_env.gap", "report_version": REPORT_VERSION,
@@ -96,6 +96,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "split": dg.split_note,
         "verdict": list(dg.verdict),
         "unexplained": bool(dg.unexplained),
+        "ambiguous": [{"effect": a["effect"], "with": list(a["with"]), "note": a["note"],
+                       "heldout_gap_nominal": _r(a["heldout_gap_nominal"]),
+                       "heldout_gap_effect": _r(a["heldout_gap_effect"]),
+                       "effect_size_deg": _r(a["effect_size_deg"], 3)} for a in dg.ambiguous],
         "unexplained_reasons": list(dg.reasons),
         "effects": effects,
         "pairs": pairs,
@@ -193,6 +197,8 @@ def text_report(rep: dict) -> str:
     L.append("")
     v = rep["verdict"]
     L.append(f"Verdict: {', '.join(v) if v else 'no catalogued effect is significant'}")
+    for a in rep.get("ambiguous", []):
+        L.append(f"  ambiguous: {a['effect']} vs baseline {', '.join(a['with'])}: {a['note']}")
     c = rep["corrected"]
     if v:
         for name, ps in c["effects"].items():
@@ -340,7 +346,10 @@ def write_outputs(dg: "D.Diagnosis", json_path: str | Path, dataset_path=None,
     params.save(tmp)
     os.replace(tmp, p_path)
     outputs["params"] = str(p_path)
-    eff = clip_to_catalogue(catalogue_effects(dg.final.values, dg.verdict))
+    eff = clip_to_catalogue(dg.model.effects_of(dg.final.setting(), dg.verdict))
+    if "convection_change" in eff:
+        # the rig as it is now: a draft seen to start during the recordings still blows
+        eff["convection_change"]["onset_s"] = 0.0
     e_path = stem.with_name(stem.name + "_effects.json")
     _atomic_write(e_path, json.dumps(eff, indent=2) + "\n")
     outputs["effects"] = str(e_path)

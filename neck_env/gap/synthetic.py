@@ -91,6 +91,51 @@ def _sense(qs, dt, mount, abias, gbias, drift0, drift_rate, a_noise, g_noise, ou
 
 # -- generation ------------------------------------------------------------------------------------
 
+BASELINES = ("default", "wide")
+
+
+def wide_params(rng: np.random.Generator, base: NeckParams | None = None) -> NeckParams:
+    """A rig whose baseline is far from the defaults (issue 11's spread): convection x0.3-x4 and
+    stress coefficient x0.5-x3 (log-uniform), transformation temperatures +-15 C, bending
+    stiffness x0.5-x2 (log-uniform), recoverable strain x0.7-x1.4, resistivity and specific
+    heat +-20 %, ambient 15-35 C."""
+    b = base or default_params()
+    m = b.material
+    logu = lambda lo, hi: float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+    h, ca, ei = logu(0.3, 4.0), logu(0.5, 3.0), logu(0.5, 2.0)
+    gl, sh = float(rng.uniform(0.7, 1.4)), float(rng.uniform(-15.0, 15.0))
+    rho, cp = float(rng.uniform(0.8, 1.2)), float(rng.uniform(0.8, 1.2))
+    return b.replace(
+        source="synthetic: wide baseline",
+        thermal__convection_W_m2K=b.thermal.convection_W_m2K * h,
+        thermal__ambient_C=float(rng.uniform(15.0, 35.0)),
+        material__As_C=m.As_C + sh, material__Af_C=m.Af_C + sh,
+        material__Ms_C=m.Ms_C + sh, material__Mf_C=m.Mf_C + sh,
+        material__C_A_Pa_per_K=m.C_A_Pa_per_K * ca, material__C_M_Pa_per_K=m.C_M_Pa_per_K * ca,
+        material__resistivity_martensite_ohm_m=m.resistivity_martensite_ohm_m * rho,
+        material__resistivity_austenite_ohm_m=m.resistivity_austenite_ohm_m * rho,
+        material__specific_heat_J_kgK=m.specific_heat_J_kgK * cp,
+        backbone__bending_stiffness_Nm2=b.backbone.bending_stiffness_Nm2 * ei,
+        spring__recoverable_shear_strain=b.spring.recoverable_shear_strain * gl,
+    )
+
+
+def sample_effect(name: str, rng: np.random.Generator, dataset_s: float) -> dict[str, float]:
+    """Magnitudes of one effect as the generators draw them.
+
+    ``convection_change`` is drawn as what no constant h produces (a constant gain is a
+    different baseline h): half the time h grows with temperature (0.004-0.012 /K), half the
+    time a draft (h x1.8-2.5 or x0.4-0.55) starts between 30 % and 70 % of the dataset's
+    recorded time ``dataset_s``."""
+    if name != "convection_change":
+        return fx.EFFECTS[name].sample(rng)
+    if rng.random() < 0.5:
+        return {"gain": 1.0, "tcoef_per_K": float(rng.uniform(0.004, 0.012)), "onset_s": 0.0}
+    gain = float(rng.uniform(1.8, 2.5)) if rng.random() < 0.5 else float(rng.uniform(0.4, 0.55))
+    return {"gain": gain, "tcoef_per_K": 0.0,
+            "onset_s": float(round(rng.uniform(0.3, 0.7) * dataset_s, 3))}
+
+
 def perturbed_params(rng: np.random.Generator, base: NeckParams | None = None,
                      jitter: float = 0.05, shift_C: float = 1.5,
                      ambient_C: tuple[float, float] = (20.0, 28.0),
@@ -138,8 +183,10 @@ def perturbed_params(rng: np.random.Generator, base: NeckParams | None = None,
     return p
 
 
-def resolve_effects(effects, rng: np.random.Generator) -> dict[str, dict[str, float]]:
-    """Names (magnitudes drawn in range) or a mapping name -> (partial) parameters."""
+def resolve_effects(effects, rng: np.random.Generator,
+                    dataset_s: float = 450.0) -> dict[str, dict[str, float]]:
+    """Names (magnitudes drawn in range, ``sample_effect``) or a mapping name -> (partial)
+    parameters."""
     if effects is None:
         return {}
     if isinstance(effects, str):
@@ -149,7 +196,7 @@ def resolve_effects(effects, rng: np.random.Generator) -> dict[str, dict[str, fl
         for name, given in effects.items():
             if name not in fx.EFFECTS:
                 raise ValueError(f"unknown effect {name!r}; known: {sorted(fx.EFFECTS)}")
-            vals = fx.EFFECTS[name].sample(rng)
+            vals = sample_effect(name, rng, dataset_s)
             vals.update(given or {})
             out[name] = fx.EFFECTS[name].check(vals)
         return out
@@ -158,7 +205,7 @@ def resolve_effects(effects, rng: np.random.Generator) -> dict[str, dict[str, fl
         name = name.strip()
         if name not in fx.EFFECTS:
             raise ValueError(f"unknown effect {name!r}; known: {sorted(fx.EFFECTS)}")
-        out[name] = fx.EFFECTS[name].sample(rng)
+        out[name] = sample_effect(name, rng, dataset_s)
     return out
 
 
@@ -166,15 +213,20 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
              n_recordings: int = 15, duration_s: float = 30.0, sample_hz: float = 50.0,
              temperatures: bool | None = None, jitter: float = 0.05,
              truth_path: str | Path | None = None, sensors: SensorParams | None = None,
-             write_meta_file: bool = True, hard: bool = False) -> dict:
+             write_meta_file: bool = True, hard: bool = False, baseline: str = "default") -> dict:
     """Write a synthetic dataset to ``out_dir`` and its truth beside it; returns the truth.
 
-    ``hard``: a rig further from the model (see ``perturbed_params``), integrated at 5 ms, with
-    1.5x the sensor noise and biases."""
+    ``baseline``: ``default`` (the calibrated values perturbed by a few per cent) or ``wide``
+    (a rig far from the defaults, ``wide_params``). ``hard``: a rig further from the model
+    (see ``perturbed_params``), integrated at 5 ms, with 1.5x the sensor noise and biases."""
     out_dir = Path(out_dir)
+    if baseline not in BASELINES:
+        raise ValueError(f"unknown baseline {baseline!r}; known: {BASELINES}")
     rng = np.random.default_rng(seed)
     params = perturbed_params(rng, jitter=jitter, hard=hard)
-    eff = resolve_effects(effects, rng)
+    if baseline == "wide":
+        params = wide_params(rng)
+    eff = resolve_effects(effects, rng, dataset_s=n_recordings * duration_s)
     if temperatures is None:
         temperatures = bool(rng.integers(2))
     if sensors is None:
@@ -186,6 +238,11 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     consts = constants_from_params(params)
     consts = fx.apply_to_constants(consts, {k: v for k, v in eff.items()
                                             if fx.EFFECTS[k].kind == "plant"})
+    draft = eff.get("convection_change", {})
+    draft_onset = float(draft.get("onset_s", 0.0))
+    consts_before = consts.copy()
+    if draft_onset > 0:
+        consts_before[:, L.CONV_GAIN] = 1.0
     mount = fx.imu_mount(eff)
     delay = fx.delay_s(eff)
     drift_rate = fx.gyro_drift(eff)
@@ -209,7 +266,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         src_t = fine_t - delay
         j = np.floor(src_t * sample_hz + 1e-9).astype(int)
         applied = np.where((j >= 0)[:, None], cmd[np.clip(j, 0, n - 1)], 0.0)
-        x = initial_state(consts)
+        rc = consts if t_cum >= draft_onset else consts_before
+        x = initial_state(rc)
         x[0, L.S_FATIGUE:L.S_FATIGUE + 3] = fatigue
         left = np.full(1, np.inf)
         o = np.empty((1, L.N_OUT))
@@ -218,7 +276,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         qs[0] = x[0, L.S_Q:L.S_Q + 3]
         Ts[0] = x[0, L.S_T:L.S_T + 3]
         for k in range(steps):
-            step_inplace(consts, x, np.ascontiguousarray(applied[k:k + 1]), dt, 1, left, o)
+            step_inplace(rc, x, np.ascontiguousarray(applied[k:k + 1]), dt, 1, left, o)
             if (k + 1) % sub == 0:
                 qs[(k + 1) // sub] = x[0, L.S_Q:L.S_Q + 3]
                 Ts[(k + 1) // sub] = x[0, L.S_T:L.S_T + 3]
@@ -253,11 +311,28 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         "temperatures": temperatures, "params": params.to_dict(),
         "sensor_bias": {"accel_g": abias.tolist(), "gyro_dps": gbias.tolist()},
         "recordings": recs_truth, "meta": meta, "integrator_dt_s": dt, "hard": hard,
+        "baseline": baseline, "baseline_ratios": baseline_ratios(params),
     }
     tp = Path(truth_path) if truth_path is not None else truth_path_for(out_dir)
     tp.parent.mkdir(parents=True, exist_ok=True)
     tp.write_text(json.dumps(truth, indent=2) + "\n")
     return truth
+
+
+def baseline_ratios(params: NeckParams) -> dict[str, float]:
+    """The rig's baseline against the defaults, in the diagnosis's own terms."""
+    d = default_params()
+    return {
+        "h_scale": params.thermal.convection_W_m2K / d.thermal.convection_W_m2K,
+        "As_shift_C": params.material.As_C - d.material.As_C,
+        "CA_scale": params.material.C_A_Pa_per_K / d.material.C_A_Pa_per_K,
+        "EI_scale": params.backbone.bending_stiffness_Nm2 / d.backbone.bending_stiffness_Nm2,
+        "gammaL_scale": params.spring.recoverable_shear_strain / d.spring.recoverable_shear_strain,
+        "R_scale": (params.material.resistivity_martensite_ohm_m
+                    / d.material.resistivity_martensite_ohm_m),
+        "heat_capacity_scale": params.material.specific_heat_J_kgK / d.material.specific_heat_J_kgK,
+        "ambient_C": params.thermal.ambient_C,
+    }
 
 
 def truth_path_for(out_dir: str | Path) -> Path:
@@ -286,6 +361,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--hard", action="store_true", help="a rig further from the model: larger "
                     "parameter spread, unfitted parameters perturbed, 5 ms integration, more "
                     "sensor noise")
+    ap.add_argument("--baseline", choices=BASELINES, default="default",
+                    help="default: the calibrated rig perturbed by a few per cent; wide: a rig "
+                         "far from the defaults (h x0.3-x4, transformation temperatures +-15 C, "
+                         "EI x0.5-x2, C_A x0.5-x3, ...)")
     ap.add_argument("--truth", default=None, help="truth JSON path (default: OUT_DIR.truth.json "
                     "beside the folder)")
     args = ap.parse_args(argv)
@@ -301,7 +380,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         truth = generate(args.out_dir, effects, seed=args.seed, protocol=args.protocol,
                          n_recordings=args.recordings, duration_s=args.duration,
                          sample_hz=args.sample_hz, temperatures=args.temperatures,
-                         truth_path=args.truth, hard=args.hard)
+                         truth_path=args.truth, hard=args.hard, baseline=args.baseline)
     except (ValueError, json.JSONDecodeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
