@@ -5,9 +5,10 @@
     python train.py --algo ppo --env-kwargs action_mode=relay --hyperparams learning_rate=1e-4
     python train.py --algo ppo --ship agents/policies/ppo_necktrack   # export the deployable policy
 
-The whole experiment is in this file: read the config (rl-baselines3-zoo style YAML, one block
-per env id), build the natively batched env (one compiled step for all rigs, see
-agents/sb3_env.py), wrap it (episode statistics, observation/reward normalization, frame
+The experiment: read the config (rl-baselines3-zoo style YAML, one block per env id), build
+the natively batched env (one compiled step for all rigs, see agents/sb3_env.py; the config
+handling and the env/model construction are in agents/training.py, shared with the Ray Tune
+sweep agents/sweep.py), wrap it (episode statistics, observation/reward normalization, frame
 stacking), train with evaluation and checkpoint callbacks, save. Everything lands in --out:
 
     model.zip  best_model.zip  checkpoints/  vecnormalize.pkl  evaluations.npz
@@ -18,45 +19,18 @@ stacking), train with evaluation and checkpoint callbacks, save. Everything land
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import platform
 import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import yaml
 
-ALGOS = ("ppo", "sac", "a2c", "td3")
-# Keys of a config block that configure the run, not the algorithm's constructor.
-RUN_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "frame_stack", "unit_actions",
-            "env_kwargs")
-
-
-def parse_kv(items: list[str], what: str) -> dict[str, Any]:
-    """``key=value`` pairs; values are Python literals when they parse as one, else strings."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise SystemExit(f"{what}: expected key=value, got {item!r}")
-        try:
-            out[key] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            out[key] = value
-    return out
-
-
-def load_config(path: Path, env_id: str) -> dict[str, Any]:
-    if not path.exists():
-        raise SystemExit(f"config {path} not found")
-    data = yaml.safe_load(path.read_text()) or {}
-    if env_id not in data:
-        raise SystemExit(f"config {path} has no block for {env_id!r} (has {sorted(data)})")
-    return dict(data[env_id])
+from agents.training import (ALGOS, CONFIG_DIR, build_model, load_config, make_env, parse_kv,
+                             resolve_config, vecnormalize_of)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,32 +65,15 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def make_env(n_envs: int, seed: int, env_kwargs: dict[str, Any], normalize: bool,
-             frame_stack: int, training: bool, unit_actions: bool):
-    from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
-
-    from agents.sb3_env import NeckTrackSB3VecEnv
-
-    venv = VecMonitor(NeckTrackSB3VecEnv(n_envs, seed=seed, unit_actions=unit_actions, **env_kwargs))
-    if normalize:
-        venv = VecNormalize(venv, training=training, norm_obs=True, norm_reward=training,
-                            gamma=0.995)
-    if frame_stack > 1:
-        venv = VecFrameStack(venv, frame_stack)
-    return venv
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import stable_baselines3 as sb3
     import torch
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
-    from stable_baselines3.common.utils import set_random_seed
-    from stable_baselines3.common.vec_env import VecNormalize, unwrap_vec_wrapper
 
     from agents.policy import export
 
-    config_path = args.config or Path(__file__).parent / "agents" / "configs" / f"{args.algo}.yml"
+    config_path = args.config or CONFIG_DIR / f"{args.algo}.yml"
     cfg = load_config(config_path, args.env)
     cfg.setdefault("env_kwargs", {})
     cfg["env_kwargs"] = {**cfg["env_kwargs"], **parse_kv(args.env_kwargs, "--env-kwargs")}
@@ -125,31 +82,19 @@ def main(argv: list[str] | None = None) -> int:
         cfg["n_timesteps"] = args.n_timesteps
     if args.n_envs is not None:
         cfg["n_envs"] = args.n_envs
-    n_envs, n_timesteps = int(cfg["n_envs"]), int(float(cfg["n_timesteps"]))
-    normalize, frame_stack = bool(cfg.get("normalize", False)), int(cfg.get("frame_stack", 1))
-    unit_actions = bool(cfg.get("unit_actions", False))
-    algo_kwargs = {k: v for k, v in cfg.items() if k not in RUN_KEYS}
-    if isinstance(algo_kwargs.get("policy_kwargs"), str):
-        algo_kwargs["policy_kwargs"] = eval(algo_kwargs["policy_kwargs"], {"dict": dict})  # zoo style
-    for key in ("learning_rate", "clip_range"):  # zoo style "lin_3e-4": linear decay to 0
-        value = algo_kwargs.get(key)
-        if isinstance(value, str) and value.startswith("lin_"):
-            start = float(value[4:])
-            algo_kwargs[key] = lambda progress_remaining, start=start: progress_remaining * start
+    run = resolve_config(cfg)
+    cfg, n_envs, n_timesteps = run.cfg, run.n_envs, run.n_timesteps
+    normalize, frame_stack, unit_actions = run.normalize, run.frame_stack, run.unit_actions
 
     out = args.out or Path("runs") / f"{args.algo}_seed{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(args.threads)
-    set_random_seed(args.seed)
 
-    env = make_env(n_envs, args.seed, cfg["env_kwargs"], normalize, frame_stack, True, unit_actions)
+    model, env = build_model(args.algo, run, args.seed,
+                             out / "tb" if args.tensorboard else None, args.verbose)
     eval_env = make_env(4, args.seed + 10_000, cfg["env_kwargs"], normalize, frame_stack, False,
                         unit_actions)
 
-    cls = getattr(sb3, args.algo.upper())
-    model = cls(cfg.get("policy", "MlpPolicy"), env, seed=args.seed, device="cpu",
-                verbose=args.verbose, tensorboard_log=str(out / "tb") if args.tensorboard else None,
-                **algo_kwargs)
     callbacks = []
     if args.eval_freq > 0:
         callbacks.append(EvalCallback(eval_env, n_eval_episodes=args.eval_episodes,
@@ -167,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.time() - started
 
     model.save(str(out / "model.zip"))
-    vecnorm = unwrap_vec_wrapper(env, VecNormalize) if normalize else None
+    vecnorm = vecnormalize_of(env, run)
     if vecnorm is not None:
         vecnorm.save(str(out / "vecnormalize.pkl"))
     record = {

@@ -4,6 +4,7 @@
     python -m agents.benchmark --quick                  # 1 episode of 10 s (smoke test)
     python -m agents.benchmark --controllers pid,mpc --episodes 3 --json out.json
     python -m agents.benchmark --action-mode relay      # the same suite through the relays
+    python -m agents.benchmark --ray [auto]             # episodes as Ray tasks (agents.distributed)
 
 Suite: ``NeckTrack-v0`` with its defaults (calibrated plant, sensor noise and biases, the
 default target distribution, the default energy budget; nothing randomized) reset with seeds
@@ -56,8 +57,10 @@ import csv
 import json
 import math
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable
 
@@ -67,6 +70,7 @@ from neck_env.envs import NeckTrackEnv
 from neck_env.envs.core import DEFAULT_BUDGET_J, MAX_CURRENT_A
 
 from .controllers import CONTROLLERS, make_controller
+from .distributed import LOCAL, add_ray_argument, fan_out
 
 DEFAULT_CONTROLLERS = ("zero", "full_on", "open_loop", "open_loop_lead", "bang_bang", "pid", "mpc")
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
@@ -88,6 +92,9 @@ class Agent:
     reset: Callable[[int], None]
     act: Callable[[np.ndarray], np.ndarray]
     extra: dict[str, Any] = field(default_factory=dict)
+    # Builds the same agent again in another process (a Ray worker, maybe on another machine):
+    # a picklable module-level call carrying everything it needs (a policy's file contents).
+    rebuild: Callable[[], "Agent"] | None = None
 
 
 @dataclass
@@ -121,7 +128,7 @@ def controller_agent(name: str, env_kwargs: dict[str, Any]) -> Agent:
     ctrl = make_controller(name, env_kwargs)
     label = name if env_kwargs["action_mode"] == "current" else f"{name}@relay"
     return Agent(label, ctrl.kind, env_kwargs, lambda seed: ctrl.reset(seed), ctrl.act,
-                 {"controller": ctrl})
+                 {"controller": ctrl}, partial(controller_agent, name, dict(env_kwargs)))
 
 
 def find_policies(policy_dir: Path) -> tuple[list[Path], list[str]]:
@@ -147,6 +154,22 @@ def find_policies(policy_dir: Path) -> tuple[list[Path], list[str]]:
 
 
 def policy_agent(zip_path: Path, suite_kwargs: dict[str, Any]) -> Agent:
+    agent = _load_policy_agent(zip_path, suite_kwargs)
+    agent.rebuild = partial(_policy_agent_from_contents, zip_path.stem, zip_path.read_bytes(),
+                            zip_path.with_suffix(".json").read_text(), dict(suite_kwargs))
+    return agent
+
+
+def _policy_agent_from_contents(stem: str, zip_bytes: bytes, meta_text: str,
+                                suite_kwargs: dict[str, Any]) -> Agent:
+    with tempfile.TemporaryDirectory(prefix="policy_") as tmp:
+        zip_path = Path(tmp) / f"{stem}.zip"
+        zip_path.write_bytes(zip_bytes)
+        zip_path.with_suffix(".json").write_text(meta_text)
+        return _load_policy_agent(zip_path, suite_kwargs)
+
+
+def _load_policy_agent(zip_path: Path, suite_kwargs: dict[str, Any]) -> Agent:
     meta = json.loads(zip_path.with_suffix(".json").read_text())
     env_kwargs = dict(suite_kwargs)
     for k in POLICY_INTERFACE_KEYS:
@@ -209,13 +232,52 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "wall_s": float(np.mean([r["wall_s"] for r in rows]))}
 
 
-def run_suite(agents: list[Agent], seeds: list[int], log=print) -> list[dict[str, Any]]:
+_WORKER_AGENTS: dict[str, Agent] = {}  # per worker process: agents built for earlier episodes
+
+
+def episode_task(item: tuple[str, Callable[[], Agent], int]) -> Episode:
+    """One suite episode in another process: rebuild the agent (once per process), run."""
+    key, rebuild, seed = item
+    if key not in _WORKER_AGENTS:
+        _WORKER_AGENTS[key] = rebuild()
+    agent = _WORKER_AGENTS[key]
+    return run_episode(agent, NeckTrackEnv(**agent.env_kwargs), seed)
+
+
+def run_episodes(agents: list[Agent], seeds: list[int],
+                 ray_address: str | None = None) -> list[list[Episode]]:
+    """Every agent on every seed: here, or one Ray task per episode (``ray_address``)."""
+    if ray_address is None:
+        out = []
+        for ag in agents:
+            env = NeckTrackEnv(**ag.env_kwargs)
+            out.append([run_episode(ag, env, seed) for seed in seeds])
+        return out
+    items = [(f"{ag.name} {json.dumps(ag.env_kwargs, sort_keys=True)}", ag.rebuild, seed)
+             for ag in agents for seed in seeds]
+    names = [f"{ag.name} seed {seed}" for ag in agents for seed in seeds]
+    missing = [ag.name for ag in agents if ag.rebuild is None]
+    if missing:
+        raise ValueError(f"agents {missing} cannot be rebuilt in a Ray worker (no rebuild)")
+
+    def line(o, k, n):
+        where = "" if o.node_id == LOCAL else f" on node {o.node_id[:8]}"
+        what = (f"rmse {o.value.row()['rmse_deg']:.2f} deg" if o.error is None
+                else "FAILED " + o.error.splitlines()[0])
+        print(f"  [{k}/{n}] {names[o.index]}: {what}{where} ({o.wall_s:.1f} s)", flush=True)
+
+    outcomes = fan_out(episode_task, items, ray_address, progress=line)
+    failed = [f"{names[o.index]}: {o.error}" for o in outcomes if o.error is not None]
+    if failed:
+        raise RuntimeError("episodes failed in Ray workers:\n" + "\n".join(failed))
+    it = iter(o.value for o in outcomes)
+    return [[next(it) for _ in seeds] for _ in agents]
+
+
+def run_suite(agents: list[Agent], seeds: list[int], log=print,
+              ray_address: str | None = None) -> list[dict[str, Any]]:
     results = []
-    for ag in agents:
-        env = NeckTrackEnv(**ag.env_kwargs)
-        episodes = []
-        for seed in seeds:
-            episodes.append(run_episode(ag, env, seed))
+    for ag, episodes in zip(agents, run_episodes(agents, seeds, ray_address)):
         rows = [dict(ep.row(), seed=ep.seed, episode=i) for i, ep in enumerate(episodes)]
         agg = aggregate(rows)
         log(f"  {ag.name:<22s} rmse {agg['rmse_deg']:6.2f} deg  energy {agg['energy_J']:7.1f} J  "
@@ -375,6 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="PNG path of the first episode's theta/phi plot (default "
                         "OUT_DIR/benchmark.png)")
     p.add_argument("--no-plot", action="store_true", help="skip the plot")
+    add_ray_argument(p, "episodes")
     return p
 
 
@@ -419,7 +482,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"suite: {episodes} episode(s) x {episode_s:g} s, seeds {seeds[0]}..{seeds[-1]}, "
           f"energy budget {args.energy_budget:g} J")
     t0 = time.perf_counter()
-    results = run_suite(agents, seeds)
+    results = run_suite(agents, seeds, ray_address=args.ray)
     print()
     print(format_table(results, args.energy_budget))
     suite = {"env_id": "NeckTrack-v0", "seeds": seeds, "episode_s": episode_s,
@@ -439,4 +502,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Run the importable module's main: Ray workers then find its functions by name.
+    from agents.benchmark import main as _main
+
+    sys.exit(_main())

@@ -4,6 +4,7 @@
     python benchmarks/gap_blind.py --quick         # 12 datasets
     python benchmarks/gap_blind.py --hard          # rigs further from the model
     python benchmarks/gap_blind.py --out runs/gap_blind --keep
+    python benchmarks/gap_blind.py --ray auto      # datasets as Ray tasks on a cluster
 
 Each case is a synthetic dataset (``neck_env.gap.synthetic``, seeded; effect magnitudes drawn
 uniformly in the catalogue ranges) diagnosed by the CLI exactly as a user runs it
@@ -32,10 +33,12 @@ import statistics
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
+from agents.distributed import add_ray_argument, fan_out
 from neck_env import effects as fx
 from neck_env.gap.cli import main as gap_main
 from neck_env.gap.synthetic import generate
@@ -89,13 +92,13 @@ def cases(quick: bool) -> list[tuple[list[str], int]]:
 
 
 def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: str = "default",
-             generator: str = "synthetic") -> dict:
+             generator: str = "synthetic", **generate_kwargs) -> dict:
     ds = root / f"ds_{seed}"
     if generator == "independent":
         from neck_env.gap.independent import generate as generate_independent
-        truth = generate_independent(ds, effects, seed=seed, baseline=baseline)
+        truth = generate_independent(ds, effects, seed=seed, baseline=baseline, **generate_kwargs)
     else:
-        truth = generate(ds, effects, seed=seed, hard=hard, baseline=baseline)
+        truth = generate(ds, effects, seed=seed, hard=hard, baseline=baseline, **generate_kwargs)
     rep_path = root / f"report_{seed}.json"
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()):
@@ -103,6 +106,15 @@ def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: st
     elapsed = time.perf_counter() - t0
     rep = json.loads(rep_path.read_text()) if rc == 0 else {}
     return {"seed": seed, "truth": truth["effects"], "rc": rc, "report": rep, "seconds": elapsed}
+
+
+def run_case_task(case: tuple[list[str], int], root: Path | None, run_kwargs: dict) -> dict:
+    """``run_case`` for one item of a fan-out; ``root`` None: a temporary folder of the worker
+    (a Ray worker may be on another machine), removed afterwards."""
+    if root is not None:
+        return run_case(*case, root, **run_kwargs)
+    with tempfile.TemporaryDirectory(prefix="gap_blind_") as tmp:
+        return run_case(*case, Path(tmp), **run_kwargs)
 
 
 def gyro_localized(rep: dict) -> tuple[bool, bool]:
@@ -215,25 +227,43 @@ def main(argv=None) -> int:
     ap.add_argument("--generator", choices=("synthetic", "independent"), default="synthetic",
                     help="independent: the structurally independent rig (neck_env.gap.independent)")
     ap.add_argument("--only", default=None, help="comma-separated seeds to run (debugging)")
-    ap.add_argument("--out", default=None, help="keep datasets, reports and results.json here")
+    ap.add_argument("--out", default=None, help="keep datasets, reports and results.json here "
+                    "(with --ray: results.json only; datasets live in the workers' temp folders)")
+    ap.add_argument("--datasets", type=int, default=None, help="only the first N cases of the suite")
+    ap.add_argument("--recordings", type=int, default=None,
+                    help="recordings per dataset (default: the generator's)")
+    ap.add_argument("--duration", type=float, default=None,
+                    help="seconds per recording (default: the generator's)")
+    add_ray_argument(ap, "datasets")
     args = ap.parse_args(argv)
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="gap_blind_"))
     root.mkdir(parents=True, exist_ok=True)
-    results = []
+    gen = {k: v for k, v in (("n_recordings", args.recordings), ("duration_s", args.duration))
+           if v is not None}
+    run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
+    only = {int(x) for x in args.only.split(",")} if args.only else None
+    suite = [c for c in cases(args.quick) if only is None or c[1] in only][:args.datasets]
+
+    def line(o, k, n):
+        if o.error is not None:
+            print(f"seed {suite[o.index][1]}: FAILED {o.error}", flush=True)
+            return
+        r, rep = o.value, o.value["report"]
+        where = "" if o.node_id == "local" else f" [node {o.node_id[:8]}]"
+        print(f"seed {r['seed']}: truth {sorted(r['truth']) or '-'} -> verdict {rep.get('verdict')} "
+              f"unexplained {rep.get('unexplained')} top {[e['name'] for e in rep.get('effects', [])[:2]]} "
+              f"({r['seconds']:.1f} s){where}", flush=True)
+
     try:
-        only = {int(x) for x in args.only.split(",")} if args.only else None
-        for effects, seed in cases(args.quick):
-            if only is not None and seed not in only:
-                continue
-            r = run_case(effects, seed, root, args.hard, args.baseline, args.generator)
-            results.append(r)
-            rep = r["report"]
-            print(f"seed {seed}: truth {sorted(r['truth']) or '-'} -> verdict {rep.get('verdict')} "
-                  f"unexplained {rep.get('unexplained')} top {[e['name'] for e in rep.get('effects', [])[:2]]} "
-                  f"({r['seconds']:.1f} s)", flush=True)
+        work = partial(run_case_task, root=None if args.ray else root, run_kwargs=run_kwargs)
+        outcomes = fan_out(work, suite, args.ray, progress=line)
+        results = [dict(o.value, node_id=o.node_id) for o in outcomes if o.error is None]
         (root / "results.json").write_text(json.dumps(
             [{k: v for k, v in r.items()} for r in results], indent=1))
         print()
+        failed = [suite[o.index][1] for o in outcomes if o.error is not None]
+        if failed:
+            print(f"{len(failed)} dataset(s) raised (seeds {failed}); left out of the summary")
         print(summarize(results))
     finally:
         if not args.out:
