@@ -34,7 +34,7 @@ from .. import effects as fx
 from ..recording import Dataset
 from . import localize
 from .fit import Candidate, Fitter, covariance
-from .model import (DRAFT_FROM, EFFECT_SPECS, switched_off, REPLACES, SCANNED, Model, ParamSpec, Prediction, Prepared,
+from .model import (DRAFT_FROM, EFFECT_SPECS, STRUCTURE, switched_off, REPLACES, SCANNED, Model, ParamSpec, Prediction, Prepared,
                     catalogue_effects, clip_to_catalogue, drift_specs, prepare, residual_parts, tilt_vec,
                     wrap180)
 
@@ -56,6 +56,7 @@ SCAN_GRID = {1: 5, 2: 3}  # per-axis scan points for plant effects with 1 or 2 p
 
 AMBIG_SIZE_DEG = 0.3  # an effect doing at least this much (RMS tilt, on vs off) ...
 AMBIG_SHIFT_SIGMA = 0.5  # ... while the baseline moved this many prior sigmas to make room
+AMBIG_WORSE = 0.03  # ... and the held-out gap is no more than 3 % worse than the nominal refit's
 
 # Which recording separates an effect from the baseline shift that mimics it.
 SEPARATE = {
@@ -202,6 +203,14 @@ def compare(data: Prepared, before: Prediction, after: Prediction, mask: np.ndar
             "blocks_improved": int((d > 0).sum()), "n_eff": n_eff, "F": F, "F_crit": F_crit}
 
 
+def responsible(c: dict) -> bool:
+    """Significant against the nominal refit *and* against the best generic structural
+    discrepancy (``vs_structure``): what a more flexible baseline explains as well is the
+    model's structure, not an effect."""
+    vs = c.get("vs_structure")
+    return significant(c) and (vs is None or significant(vs))
+
+
 def significant(c: dict) -> bool:
     """Responsible: beats the reference on held-out data by the F test (with the margin it
     implies), by a practical margin, and consistently (block t, or every held-out recording
@@ -234,6 +243,15 @@ def effect_candidate(model: Model, names: Sequence[str], nominal_values: dict[st
         fixed[DRAFT_FROM] = float(vals.get(DRAFT_FROM, model.data.n_rec))
     c = Candidate("+".join(names) if names else "nominal", tuple(names), specs, fixed)
     c.u = np.array([s.to_unit(min(max(vals.get(s.key, s.start), s.lower), s.upper))
+                    for s in specs])
+    return c
+
+
+def structure_candidate(model: Model, name: str, nominal_values: dict[str, float]) -> Candidate:
+    """The nominal model plus one generic structural discrepancy (``model.STRUCTURE``)."""
+    specs = list(model.nominal) + list(STRUCTURE[name])
+    c = Candidate(name, (), specs)
+    c.u = np.array([s.to_unit(min(max(nominal_values.get(s.key, s.start), s.lower), s.upper))
                     for s in specs])
     return c
 
@@ -366,8 +384,11 @@ def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequenc
     same recordings. Those parameters are its ``with``; the note says which recording would
     separate the two. Effects that do nothing (fitted off) or that the data favour are not
     listed."""
-    cands = [c for c in singles if c.effects[0] not in verdict and not significant(single_cmp[c.name])]
-    if not cands:
+    # about equally: no worse than the nominal refit by more than AMBIG_WORSE held out; with a
+    # verdict the data are explained and another effect's trade-off with the baseline is moot
+    cands = [c for c in singles if not significant(single_cmp[c.name])
+             and single_cmp[c.name]["gap_after"] <= (1 + AMBIG_WORSE) * single_cmp[c.name]["gap_before"]]
+    if verdict or not cands:
         return []
     offs = model.predict([switched_off(c.setting()) for c in cands])
     m = fitter.mask
@@ -428,6 +449,8 @@ class Diagnosis:
     full: dict  # full-rate predictions: {"nominal": [...], "corrected": [...]}
     timing: dict = field(default_factory=dict)
     ambiguous: list = field(default_factory=list)
+    nulls: list = field(default_factory=list)  # generic structural discrepancies, best first
+    null_cmp: dict = field(default_factory=dict)
 
 
 def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
@@ -446,7 +469,10 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
     for s, x, sd in zip(cand.specs, cand.u, std):
         v = s.from_unit(float(x))
         params[s.key] = {"value": v, "std": float(sd), "lower": s.lower, "upper": s.upper,
-                         "at_bound": bool(x <= 1e-6 or x >= 1 - 1e-6), "doc": s.doc}
+                         "at_bound": bool(x <= 1e-6 or x >= 1 - 1e-6), "doc": s.doc,
+                         "default": s.start}
+    for s, sd in zip(cand.specs, std):
+        params[s.key]["identified"] = bool(_identified(s, sd, params))
     # identifiability: singular values of the Jacobian in unit coordinates (columns scaled)
     A = J / math.sqrt(r.size)
     sv = np.linalg.svd(A, compute_uv=False) if A.size else np.zeros(0)
@@ -468,8 +494,17 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
             "singular_values": [float(v) for v in sv],
             "condition_number": float(sv[0] / sv[-1]) if sv.size and sv[-1] > 0 else math.inf,
             "weak_directions": weak, "strong_correlations": strong_corr,
-            "identifiable": [s.key for s, sd, x in zip(cand.specs, std, cand.u)
-                             if sd < 0.25 * (s.upper - s.lower if not s.log else s.from_unit(1) - s.from_unit(0))]}
+            "identifiable": [s.key for s, sd in zip(cand.specs, std) if _identified(s, sd, params)]}
+
+
+def _identified(spec: ParamSpec, std: float, params: dict) -> bool:
+    """The data, not the prior, pin the value: its uncertainty is under half the prior's
+    (or, with no prior, under a quarter of the range)."""
+    v = params[spec.key]["value"]
+    if spec.prior_sigma is None:
+        return std < 0.25 * (spec.from_unit(1) - spec.from_unit(0))
+    prior = spec.prior_sigma * (abs(v) if spec.log else 1.0)
+    return std < 0.5 * prior
 
 
 def full_residuals(data: Prepared, full_pred: list[dict]) -> list[dict]:
@@ -571,20 +606,32 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
     starts = scan_starts(model, fitter, nom_vals, [], list(fx.CATALOGUE), rng)
     tm["scan_s"] = time.perf_counter() - t0 - sum(tm.values())
     singles = [effect_candidate(model, [n], nom_vals, starts[n]) for n in fx.CATALOGUE]
-    fitter.run(singles, max_iter=max_iter)
+    nulls = [structure_candidate(model, n, nom_vals) for n in STRUCTURE]
+    fitter.run(singles + nulls, max_iter=max_iter)
     for c in singles:
         settle_draft(model, c, hold_rec, hold_mask)
     tm["single_fits_s"] = time.perf_counter() - t0 - sum(tm.values())
     single_cmp = {c.name: compare(data, nominal.pred, c.pred, hold_mask) for c in singles}
+    null_cmp = {c.name: compare(data, nominal.pred, c.pred, hold_mask) for c in nulls}
+    nulls.sort(key=lambda c: null_cmp[c.name]["gap_after"])
+    best_null = nulls[0] if nulls and null_cmp[nulls[0].name]["reduction"] > 0 else None
+    for c in nulls:
+        s = null_cmp[c.name]
+        say(f"  {c.name:26s} held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f} deg "
+            f"({100 * s['reduction']:+.0f} %)  [generic structural discrepancy]")
+    for c in singles:
+        single_cmp[c.name]["vs_structure"] = (
+            compare(data, best_null.pred, c.pred, hold_mask) if best_null is not None else None)
     singles.sort(key=lambda c: single_cmp[c.name]["gap_after"])
     for c in singles:
         s = single_cmp[c.name]
         say(f"  {c.name:26s} held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f} deg "
             f"({100 * s['reduction']:+.0f} %, F = {s['F']:.2f} > {s['F_crit']:.2f}?, t = {s['t']:.1f})"
             f"{'  *' if significant(s) else ''}")
+    # (moved below the nulls' comparison)
 
     # 4. decision, pairs
-    sig = [c for c in singles if significant(single_cmp[c.name])]
+    sig = [c for c in singles if responsible(single_cmp[c.name])]
     verdict_c: Candidate = nominal
     pairs: list[Candidate] = []
     pair_cmp: dict[str, dict] = {}
@@ -602,7 +649,7 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
         # each pair against its first member (the verdict so far)
         single = verdict_c
         pair_cmp = _fit_and_judge_pairs(fitter, data, pairs, lambda p: single, nominal,
-                                        hold_rec, hold_mask, max_iter, significant)
+                                        hold_rec, hold_mask, max_iter, significant, best_null)
         for p in pairs[:PAIR_TOP]:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s['gap_before']:.3f} -> "
@@ -627,7 +674,7 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
                                key=lambda c: single_cmp[c.name]["gap_after"])
         pair_cmp = _fit_and_judge_pairs(
             fitter, data, pairs, better, nominal, hold_rec, hold_mask, max_iter,
-            lambda s: significant(s["vs_nominal"]) and s["F"] > s["F_crit"])
+            lambda s: significant(s["vs_nominal"]) and s["F"] > s["F_crit"], best_null)
         for p in pairs:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s['vs_nominal']['gap_before']:.3f} -> "
@@ -689,6 +736,11 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
                     else f"changes between recordings by {rest_spread:.2f} deg RMS")
             reasons.append(f"the tilt read at rest {what}; no catalogued effect moves the rest "
                            f"reading from recording to recording")
+    if best_null is not None and not verdict and significant(null_cmp[best_null.name]):
+        nc = null_cmp[best_null.name]
+        reasons.append(f"a generic structural discrepancy ({best_null.name.split(':', 1)[1]}) "
+                       f"removes {100 * nc['reduction']:.0f} % of the held-out gap, more than any "
+                       f"catalogued effect: this rig's structure differs from the model's")
     unexplained = bool(reasons)
     tm["total_s"] = time.perf_counter() - t0
     return Diagnosis(data=data, model=model, hold_rec=hold_rec, split_note=note, nominal=nominal,
@@ -701,12 +753,12 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
                      unexplained=unexplained, reasons=reasons,
                      full={"nominal": full_nom, "corrected": full_cor,
                            "nominal_heldout": full_nom_heldout}, timing=tm,
-                     ambiguous=ambiguous)
+                     ambiguous=ambiguous, nulls=nulls, null_cmp=null_cmp)
 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,
                          nominal: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray,
-                         max_iter: int, accept) -> dict[str, dict]:
+                         max_iter: int, accept, best_null: Candidate | None = None) -> dict[str, dict]:
     """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)`` and
     with the nominal refit (``"vs_nominal"``), mark ``"accepted"`` by ``accept(comparison)``;
     sorts ``pairs`` best first and returns the comparisons by name."""
@@ -717,7 +769,10 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     for p in pairs:
         c = compare(data, reference(p).pred, p.pred, hold_mask)
         c["vs_nominal"] = compare(data, nominal.pred, p.pred, hold_mask)
-        c["accepted"] = bool(accept(c))
+        c["vs_structure"] = (compare(data, best_null.pred, p.pred, hold_mask)
+                             if best_null is not None else None)
+        c["accepted"] = bool(accept(c)) and (c["vs_structure"] is None
+                                             or significant(c["vs_structure"]))
         cmp[p.name] = c
     pairs.sort(key=lambda p: cmp[p.name]["gap_after"])
     return cmp

@@ -47,6 +47,7 @@ class Candidate:
     J: np.ndarray | None = None
     J_prior: np.ndarray | None = None
     fails: int = 0
+    small: int = 0  # consecutive accepted steps that improved the cost by less than rtol
     iters: int = 0
     done: bool = False
 
@@ -136,7 +137,9 @@ class Fitter:
                     c.mu = max(c.mu * lam * 0.5, 1e-6)
                     c.J = None
                     c.fails = 0
-                    if rel < rtol:
+                    # one small step may be a damped step in a curved valley: stop after two
+                    c.small = c.small + 1 if rel < rtol else 0
+                    if c.small >= 2:
                         c.done = True
                 else:
                     c.mu *= 16.0

@@ -181,6 +181,30 @@ EFFECT_SPECS: dict[str, list[ParamSpec]] = {
         ParamSpec("backbone_friction.friction_Nm", 0.0, 0.06, 0.005, "plant"),
     ],
 }
+# Generic discrepancies: ways an independent rig's *structure* may differ (the shape of the
+# transformation curve, its hysteresis, stress asymmetry, latent heat, head dynamics) that no
+# catalogued effect names. Each is fitted like an effect; an effect is only responsible when it
+# also beats the best of these (a misfit they explain as well is structural, not an effect).
+STRUCTURE: dict[str, list[ParamSpec]] = {
+    "structure:transformation_band": [
+        ParamSpec("width_scale", 0.4, 2.5, 1.0, "plant", log=True,
+                  doc="width of the transformation bands (Af - As, Ms - Mf) x"),
+        ParamSpec("hysteresis_shift_C", -15.0, 15.0, 0.0, "plant",
+                  doc="martensite temperatures shifted against the austenite ones, C"),
+    ],
+    "structure:stress_asymmetry": [
+        ParamSpec("CM_ratio", 0.4, 2.5, 1.0, "plant", log=True, doc="C_M / C_A"),
+    ],
+    "structure:latent_heat": [
+        ParamSpec("latent_scale", 0.1, 3.0, 1.0, "plant", log=True, doc="latent heat x"),
+    ],
+    "structure:head_dynamics": [
+        ParamSpec("damping_scale", 0.1, 30.0, 1.0, "plant", log=True,
+                  doc="backbone damping x (a head with inertia, a slower backbone)"),
+    ],
+}
+
+
 # Each effect switched off: the value at which it is exactly the nominal model (the nesting).
 EFFECT_OFF: dict[str, float] = {
     "imu_misalignment.yaw_deg": 0.0, "head_payload.mass_kg": 0.0,
@@ -415,14 +439,20 @@ class Model:
         s = lambda k, d: float(setting.get(k, d))
         shift = s("As_shift_C", 0.0)
         m = b.material
+        # structural discrepancies (STRUCTURE): band widths, hysteresis, C_M / C_A, ...
+        wa = (m.Af_C - m.As_C) * s("width_scale", 1.0)
+        wm = (m.Ms_C - m.Mf_C) * s("width_scale", 1.0)
+        hy = s("hysteresis_shift_C", 0.0)
         return b.replace(
             source=source,
             thermal__convection_W_m2K=b.thermal.convection_W_m2K * s("h_scale", 1.0),
             thermal__ambient_C=s("ambient_C", self.data.ambient),
-            material__As_C=m.As_C + shift, material__Af_C=m.Af_C + shift,
-            material__Ms_C=m.Ms_C + shift, material__Mf_C=m.Mf_C + shift,
+            material__As_C=m.As_C + shift, material__Af_C=m.As_C + shift + wa,
+            material__Ms_C=m.Ms_C + shift + hy, material__Mf_C=m.Ms_C + shift + hy - wm,
             material__C_A_Pa_per_K=m.C_A_Pa_per_K * s("CA_scale", 1.0),
-            material__C_M_Pa_per_K=m.C_M_Pa_per_K * s("CA_scale", 1.0),
+            material__C_M_Pa_per_K=m.C_M_Pa_per_K * s("CA_scale", 1.0) * s("CM_ratio", 1.0),
+            material__latent_heat_J_kg=m.latent_heat_J_kg * s("latent_scale", 1.0),
+            backbone__damping_Nms_per_rad=b.backbone.damping_Nms_per_rad * s("damping_scale", 1.0),
             backbone__bending_stiffness_Nm2=b.backbone.bending_stiffness_Nm2 * s("EI_scale", 1.0),
             spring__recoverable_shear_strain=(b.spring.recoverable_shear_strain
                                               * s("gammaL_scale", 1.0)),

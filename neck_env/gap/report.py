@@ -13,7 +13,7 @@ import numpy as np
 
 from .. import effects as fx
 from . import diagnose as D
-from .model import clip_to_catalogue
+from .model import STRUCTURE, clip_to_catalogue
 
 REPORT_VERSION = 1
 
@@ -61,7 +61,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_n_eff": _r(s["n_eff"], 1),
             "heldout_blocks_improved": f"{s['blocks_improved']}/{s['blocks']}",
             "heldout_recordings_improved": f"{s['recordings_improved']}/{s['recordings']}",
-            "significant": bool(D.significant(s)),
+            "significant": bool(D.responsible(s)),
+            "significant_vs_nominal": bool(D.significant(s)),
+            "heldout_gap_structure": (_r(s["vs_structure"]["gap_before"])
+                                      if s.get("vs_structure") else None),
             "heldout_theta_rmse_after": _r(g["theta_rmse"]),
             "heldout_phi_rmse_after": _r(g["phi_rmse"]),
             "signature": fx.EFFECTS[c.name].signature,
@@ -103,6 +106,11 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "unexplained_reasons": list(dg.reasons),
         "effects": effects,
         "pairs": pairs,
+        "structure": [{"name": c.name.split(":", 1)[1],
+                       "params": {sp.key: _r(c.values[sp.key], 6) for sp in STRUCTURE[c.name]},
+                       "heldout_gap_before": _r(dg.null_cmp[c.name]["gap_before"]),
+                       "heldout_gap_after": _r(dg.null_cmp[c.name]["gap_after"]),
+                       "heldout_reduction": _r(dg.null_cmp[c.name]["reduction"])} for c in dg.nulls],
         "localization": loc,
         "localization_summary": {
             "by_signal": {k: _r(v) for k, v in dg.localization["by_signal"].items()},
@@ -127,7 +135,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                       "rest_offset_drift_deg": _r(fc["rest_drift"]),
                       "rest_offset_drift_r2": _r(fc["rest_drift_r2"]),
                       "params": {k: _r(v, 6) for k, v in dg.final.values.items()}},
-        "calibration": dg.calibration,
+        "calibration": dict(dg.calibration, h_default_W_m2K=dg.model.base.thermal.convection_W_m2K),
         "ambient": {"value_C": data.ambient, "source": data.ambient_source},
         "temperatures_used": bool(data.has_T),
         "method": {
@@ -165,9 +173,20 @@ def text_report(rep: dict) -> str:
     L.append(f"Nominal model refitted: held-out gap {n['heldout_gap']:.3f} deg "
              f"(theta RMSE {n['heldout_theta_rmse']:.3f}, weighted phi RMSE {n['heldout_phi_rmse']:.3f})")
     cal = rep["calibration"]["params"]
+    heldout_fit = n["params"]
+    L.append("    This rig's baseline: fitted on the fitting recordings (the fit whose held-out gap "
+             "is above) | on all recordings +- std | vs the defaults")
     for k, v in cal.items():
-        L.append(f"    {k:16s} {v['value']:10.4g} +- {v['std']:.2g}"
-                 f"{'  (at bound)' if v['at_bound'] else ''}")
+        vs = (f"x{v['value']:.3g}" if k.endswith("_scale") else
+              f"{v['value'] - v['default']:+.3g} C" if k.endswith("shift_C") else "")
+        L.append(f"    {k:20s} {heldout_fit.get(k, float('nan')):10.4g} | {v['value']:10.4g} +- {v['std']:<8.2g}"
+                 f" {vs:10s}{'  at bound' if v['at_bound'] else ''}"
+                 f"{'' if v.get('identified', True) else '  not identified by these data (held by its prior)'}")
+    if "h_scale" in cal:
+        h = cal["h_scale"]
+        h0 = rep["calibration"]["h_default_W_m2K"]
+        L.append(f"    convection h = {h0 * h['value']:.3g} +- {h0 * h['std']:.2g} W/m^2K "
+                 f"(default {h0:.3g}): {'identified by the cooling tails' if h.get('identified') else 'NOT identified: record longer cooling tails (the rig protocol)'}")
     weak = rep["calibration"]["weak_directions"]
     if weak:
         L.append("    weakly identifiable: " + "; ".join(
@@ -194,6 +213,12 @@ def text_report(rep: dict) -> str:
     for p in rep["pairs"]:
         L.append(f"  {'*' if p['significant'] else ' '} pair {p['name']:30s} -> {p['heldout_gap_after']:.3f} deg "
                  f"({100 * p['heldout_reduction_vs_best_single']:+.1f} % vs its best single, t {p['heldout_t_vs_best_single']:.1f})")
+    if rep.get("structure"):
+        L.append("Generic structural discrepancies (an effect must beat the best of these too):")
+        for c in rep["structure"]:
+            ps = ", ".join(f"{k}={x:.3g}" for k, x in c["params"].items())
+            L.append(f"    {c['name']:25s} {c['heldout_gap_before']:.3f} -> {c['heldout_gap_after']:.3f} deg "
+                     f"({100 * c['heldout_reduction']:+5.1f} %)  {ps}")
     L.append("")
     v = rep["verdict"]
     L.append(f"Verdict: {', '.join(v) if v else 'no catalogued effect is significant'}")
