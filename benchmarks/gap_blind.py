@@ -105,7 +105,8 @@ def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: st
         rc = gap_main([str(ds), "--json", str(rep_path), "--no-plots", "--quiet"])
     elapsed = time.perf_counter() - t0
     rep = json.loads(rep_path.read_text()) if rc == 0 else {}
-    return {"seed": seed, "truth": truth["effects"], "rc": rc, "report": rep, "seconds": elapsed}
+    return {"seed": seed, "truth": truth["effects"], "rc": rc, "report": rep, "seconds": elapsed,
+            "baseline_truth": truth.get("baseline_ratios")}
 
 
 def run_case_task(case: tuple[list[str], int], root: Path | None, run_kwargs: dict) -> dict:
@@ -163,6 +164,25 @@ def summarize(results: list[dict]) -> str:
     L.append(f"effect-free: false positives {len(fp)}/{len(free)} = {100 * len(fp) / max(1, len(free)):.0f} % "
              f"(target <= 10 %)" + (f" [{', '.join(str(r['report']['verdict']) for r in fp)}]" if fp else "")
              + f"; flagged unexplained {sum(bool(r['report'].get('unexplained')) for r in free)}/{len(free)}")
+    amb = [r for r in singles if next(iter(r["truth"])) in
+           {a["effect"] for a in r["report"].get("ambiguous", [])}]
+    L.append(f"single effects listed as ambiguous with a baseline shift (not in the verdict): "
+             f"{len(amb)}/{len(singles)} "
+             + str(sorted(f"{next(iter(r['truth']))} ~ {','.join(a['with'])}" for r in amb
+                          for a in r["report"]["ambiguous"] if a["effect"] in r["truth"])))
+    L.append(f"effect-free: ambiguous entries {sum(len(r['report'].get('ambiguous', [])) for r in free)} "
+             f"over {len(free)} datasets " + str([[a["effect"] for a in r["report"].get("ambiguous", [])]
+                                                   for r in free]))
+    hrec = []
+    for r in free:
+        br = r.get("baseline_truth") or {}
+        cal = r["report"].get("calibration", {}).get("params", {}).get("h_scale")
+        if cal and "h_scale" in br:
+            hrec.append((cal["value"] / br["h_scale"] - 1, cal.get("identified")))
+    if hrec:
+        L.append("baseline recovered on effect-free data: h fitted / true - 1 = "
+                 + ", ".join(f"{100 * e:+.0f} %{'' if ok else ' (not identified)'}" for e, ok in hrec)
+                 + f"; within +-25 %: {sum(abs(e) <= 0.25 for e, _ in hrec)}/{len(hrec)}")
     red = []
     for r in singles:
         name = next(iter(r["truth"]))

@@ -278,6 +278,11 @@ def _scan_values(name: str, specs: Sequence[ParamSpec], rng: np.random.Generator
     """Effect values to scan: the generic grid, and for a convection change its two forms --
     h growing with temperature, and a draft starting at a recording boundary (discrete, so
     scanned here and held fixed by the fit)."""
+    if name == "supply_limit":
+        # the limit binds only below ~ 8 A x R_load (~6-8 V): above that the cost is flat, so
+        # a coarse log grid over 1.5-40 V would leave the fit stranded at "off"
+        return [{"supply_limit.compliance_V": v} for v in
+                (2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 40.0)]
     if name != "convection_change":
         return [{s.key: s.from_unit(float(x)) for s, x in zip(specs, u)}
                 for u in scan_points(specs, rng)]
