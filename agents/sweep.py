@@ -35,7 +35,7 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -77,7 +77,6 @@ class SweepSpec:
     grace_period: int
     reduction_factor: float
     source: str = ""
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def load_spec(path: Path, overrides: dict[str, Any] | None = None) -> SweepSpec:

@@ -261,3 +261,25 @@ def test_a_node_dying_mid_run_loses_no_result(cluster, tmp_path):
     assert sorted(r["seed"] for r in results) == list(range(1000, 1006))
     assert all(r["rc"] == 0 and r["report"].get("verdict") is not None for r in results)
     assert "failures: 0" in text
+
+
+def test_sweep_trial_resumes_from_its_checkpoint(tmp_path):
+    """What a trial does when its node died: continue from the last checkpoint, not from 0."""
+    import shutil
+
+    from agents.sweep import load_spec, train_and_score
+
+    spec = dataclasses.replace(load_spec(_tiny_sweep(tmp_path)), n_timesteps=2048)
+    params = {"learning_rate": 3e-4, "gae_lambda": 0.95}
+    saved = tmp_path / "ckpt"
+
+    def keep(metrics, ckpt_dir):
+        shutil.copytree(ckpt_dir, saved)
+        assert (saved / "policy.zip").exists() and (saved / "vecnormalize.pkl").exists()
+
+    first = train_and_score(spec, params, 0, keep)
+    reports = []
+    resumed = train_and_score(dataclasses.replace(spec, n_timesteps=4096), params, 0,
+                              lambda m, c: reports.append(m["timesteps"]), resume_from=saved)
+    assert first["timesteps"] == 2048
+    assert reports == [4096] and resumed["timesteps"] == 4096  # one chunk: it went on from 2048
