@@ -194,7 +194,7 @@ class FakeFirmware:
                         self.heartbeat_trips += 1
                 if self.stream_hz and not self.silent and now >= next_tel:
                     self._send(P.MsgType.TELEMETRY, self._next_tx(), self._status_payload())
-                    next_tel = max(next_tel + 1.0 / self.stream_hz, now)
+                    next_tel = max(next_tel, now - 0.5 / self.stream_hz) + 1.0 / self.stream_hz
             try:
                 conn.close()
             except OSError:

@@ -21,7 +21,7 @@ import neck_env  # noqa: E402,F401  (registers NeckTrack-v0)
 from neck_env.recording import read_dataset, read_recording  # noqa: E402
 from neck_env.rig import protocol as P  # noqa: E402
 from neck_env.rig.errors import (RigFirmwareReset, RigImuError, RigLinkLost,  # noqa: E402
-                                 RigRefused, RigTimeout)
+                                 RigNotAtRest, RigRefused, RigTimeout)
 from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
 from neck_env.rig.link import RigLink  # noqa: E402
 
@@ -277,3 +277,49 @@ def test_env_temperature_estimate_keeps_cooling_between_episodes(fw):
     drop = traj.T_C[199, 0, 0] - traj.T_C[-1, 0, 0]
     assert hot - obs[2] == pytest.approx(drop, rel=0.5), (hot, obs[2], drop)
     env.close()
+
+
+def test_env_remembers_the_springs_across_processes_and_waits_for_rest(fw):
+    """A second command on the same port starts from the springs the first one heated (saved
+    with the wall-clock time, cooled over the gap), so it waits for rest -- and with
+    ``require_rest`` refuses a neck that does not cool in time, naming the hot spring."""
+    env = _env(fw, action_mode="relay", energy_budget_J=float("inf"))
+    env.reset(seed=0)
+    for _ in range(40):  # 2 s at 7 A on muscle 1
+        obs, *_ = env.step(np.array([1, 0, 0]))
+    hot = float(obs[2])
+    env.close()
+    assert hot > 40.0
+    env2 = _env(fw, action_mode="relay", cooldown_s=1.0)  # a new process would do the same
+    try:
+        assert "last driven" in env2.memory_note
+        assert env2.estimate.temperatures_C[0] > 35.0  # not the ambient a fresh estimate has
+        with pytest.raises(RigNotAtRest, match=r"not at rest after 1 s: hottest spring \+\d"):
+            env2.reset(seed=0, options={"require_rest": True})
+        assert fw.relays == 0
+    finally:
+        env2.close()
+    # without the memory a fresh estimate would start at ambient: the old behaviour
+    env3 = _env(fw, action_mode="relay", remember=False)
+    assert env3.estimate.temperatures_C[0] == pytest.approx(25.0)
+    env3.close()
+
+
+def test_env_waits_for_the_springs_to_cool_before_an_episode(fw):
+    env = _env(fw, action_mode="relay", energy_budget_J=float("inf"))
+    env.reset(seed=0)
+    for _ in range(4):  # 0.2 s at 7 A: a few K above the rest margin, a short wait
+        env.step(np.array([0, 1, 0]))
+    env.close()
+    env2 = _env(fw, action_mode="relay", cooldown_s=60.0)
+    try:
+        warm = float(env2.estimate.temperatures_C[1])
+        assert warm > 28.0
+        env2.reset(seed=0, options={"require_rest": True})
+        r = env2.last_rest
+        print(f"\nspring at {warm:.1f} C: at rest after {r.waited_s:.1f} s")
+        # cooled below the margin, then held it for REST.settle_s
+        assert r.at_rest and r.hottest_excess_K <= 3.0 and r.waited_s > 3.5
+        assert env2.estimate.temperatures_C[1] <= 28.0
+    finally:
+        env2.close()

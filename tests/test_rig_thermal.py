@@ -37,3 +37,32 @@ def test_estimate_ambient_and_bad_input():
             est.advance(np.array(bad), 0.05)
     with pytest.raises(ValueError, match="dt_s"):
         est.advance(np.zeros(3), -0.1)
+
+
+def test_memory_carries_the_springs_between_processes_with_the_cooling(tmp_path):
+    from neck_env.rig.memory import COLD_AFTER_S, RigMemory
+
+    mem = RigMemory("/dev/ttyACM0", tmp_path)
+    est = ThermalEstimate()
+    assert "no earlier use" in mem.restore(est) and np.all(est.temperatures_C == 25.0)
+    est.advance(np.array([7.0, 0.0, 0.0]), 5.0)
+    mem.save(est, now_unix_s=1000.0)
+    ref = ThermalEstimate()
+    ref.load_state_vector(est.state_vector())
+    ref.advance(np.zeros(3), 20.0)
+    fresh = ThermalEstimate()
+    note = RigMemory("/dev/ttyACM0", tmp_path).restore(fresh, now_unix_s=1020.0)
+    assert "20 s ago" in note
+    np.testing.assert_allclose(fresh.temperatures_C, ref.temperatures_C, atol=1e-9)
+    assert fresh.temperatures_C[0] > 60.0
+    # another port has its own history; a long idle is cold; a broken file is ignored
+    other = ThermalEstimate()
+    RigMemory("/dev/ttyACM1", tmp_path).restore(other, now_unix_s=1020.0)
+    assert other.temperatures_C[0] == 25.0
+    cold = ThermalEstimate()
+    assert "idle" in mem.restore(cold, now_unix_s=1000.0 + COLD_AFTER_S + 1)
+    assert cold.temperatures_C[0] == 25.0
+    mem.path.write_text("{not json")
+    broken = ThermalEstimate()
+    assert "ignored unreadable" in mem.restore(broken, now_unix_s=1020.0)
+    assert broken.temperatures_C[0] == 25.0

@@ -9,6 +9,7 @@ written last, and only when everything before it succeeded).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -38,10 +39,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     from .diagnose import diagnose
     from .report import text_report, write_outputs
+    from .rest import not_at_rest, without
+
+    # recordings that do not start at rest would inflate the gap: out, with a warning
+    bent = not_at_rest(ds)
+    for b in bent:
+        print(f"neck-gap: warning: {b['recording']} does not start at rest ({b['why']}): "
+              f"excluded", file=sys.stderr)
+    if bent and len(bent) == len(ds.recordings):
+        print("neck-gap: bad input: no recording starts at rest (record each one from an "
+              "upright neck with cold springs: python -m neck_env.rig protocol waits for that)",
+              file=sys.stderr)
+        return 2
     try:
-        dg = diagnose(ds, log=log)
+        dg = diagnose(without(ds, [b["recording"] for b in bent]), log=log)
         rep = write_outputs(dg, args.json, dataset_path=Path(args.dataset),
                             make_plots=not args.no_plots)
+        rep["not_at_rest"] = bent
+        tmp = Path(args.json).with_name(Path(args.json).name + ".tmp")
+        tmp.write_text(json.dumps(rep, indent=2) + "\n")
+        tmp.replace(args.json)
     except RecordingError as exc:
         print(f"neck-gap: bad input: {exc}", file=sys.stderr)
         return 2
@@ -49,6 +66,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"verdict: {', '.join(rep['verdict']) or 'none'}; unexplained: {rep['unexplained']}")
     else:
         print(text_report(rep))
+    if bent:
+        print(f"EXCLUDED {len(bent)} recording(s) that do not start at rest: "
+              f"{', '.join(b['recording'] for b in bent)} (see \"not_at_rest\" in {args.json})")
     return 0
 
 

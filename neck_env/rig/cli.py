@@ -6,7 +6,11 @@ Subcommands (``--help`` on each explains every flag):
   heuristic controller (``--controller``), recorded to ``--record DIR``;
 * ``pulse`` -- the paper's step experiment: one muscle at the supply current for some seconds,
   then cooling, recorded;
-* ``info``  -- firmware identity, safety configuration, live status and faults.
+* ``protocol`` -- the recording protocol the diagnosis (``neck-gap``) expects, as one resumable
+  session that waits for rest before each recording (``neck_env.rig.session``);
+* ``info``  -- firmware identity, safety configuration, live status and faults;
+* ``emulate`` -- no hardware: the real firmware in simavr with the simulator as the neck
+  (``neck_env.rig.sim_neck.EmulatedRig``); prints the port the other commands take.
 
 Every command switches the relays off when it ends, fails or is interrupted (Ctrl-C); errors
 are printed as one line naming the problem, with exit status 1 (2 for bad arguments, 130 for
@@ -29,6 +33,7 @@ from ..envs.core import (DEFAULT_BUDGET_J, DEFAULT_CUTOFF_C, DEFAULT_DT_S, DEFAU
 from ..observation import tilt_angles_deg, tilt_from_accel
 from . import protocol as P
 from .errors import RigError, fault_names
+from ..experiments import PROTOCOLS as PROTOCOL_NAMES
 
 __all__ = ["build_parser", "main"]
 
@@ -58,7 +63,7 @@ def _mask(text: str) -> int:
     return v
 
 
-def _add_rig_args(p: argparse.ArgumentParser) -> None:
+def _add_rig_args(p: argparse.ArgumentParser, cooldown_flag: bool = True) -> None:
     p.add_argument("--port", required=True,
                    help="serial port of the UNO (/dev/ttyACM0, COM3) or a pyserial URL "
                         "(socket://host:port, rfc2217://...)")
@@ -72,9 +77,12 @@ def _add_rig_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params", default=None, metavar="JSON",
                    help="model parameters for the thermal estimate and the energy accounting "
                         "(e.g. report_params.json from neck-gap; default: calibrated)")
+    if not cooldown_flag:
+        return
     p.add_argument("--no-cooldown", action="store_true",
-                   help="start at once instead of waiting until the springs have cooled to "
-                        "near ambient")
+                   help="start at once instead of waiting until the neck is at rest (springs "
+                        "near ambient -- measured, or estimated from this computer's earlier "
+                        "commands on the port --, tilt steady)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -83,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="The SMA neck rig: run a policy or controller, pulse a muscle, inspect the "
                     "firmware. The relays are switched off when a command ends, fails or is "
                     "interrupted.")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{run,pulse,info}")
+    sub = ap.add_subparsers(dest="command", required=True,
+                            metavar="{run,pulse,protocol,info,emulate}")
 
     r = sub.add_parser("run", help="run NeckTrack episodes on the rig with a policy or controller",
                        description="Episodes of the NeckTrack task on the rig (HardwareNeckEnv), "
@@ -139,11 +148,63 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--record", metavar="DIR", default=None,
                    help="folder for the recording (design.md 2.2)")
 
+    s = sub.add_parser(
+        "protocol", help="record the diagnosis's protocol (for neck-gap) as a resumable session",
+        description="Record the protocol neck-gap expects (neck_env.experiments): pulses at 4-8 A "
+                    "on each muscle, relay sequences, cycles and long cooling tails, in order, "
+                    "each started at rest (springs near ambient, tilt back at the rest reading; "
+                    "waits up to 15 min). Asks you to set the bench supply whenever the current "
+                    "changes. Interrupted (Ctrl-C, an error)? Run the same command again: it skips "
+                    "complete recordings and redoes the interrupted one (kept in DIR/interrupted).")
+    s.add_argument("--record", metavar="DIR", required=True,
+                   help="dataset folder (recordings, meta.json, session.json); read it with "
+                        "neck-gap DIR")
+    s.add_argument("--protocol", choices=PROTOCOL_NAMES, default="rig",
+                   help="rig (default: mixed plus two 60 s cooling tails, ~17 recordings), mixed "
+                        "or paper")
+    s.add_argument("--seed", type=int, default=0,
+                   help="seed of the protocol's order and levels (default 0); resume with the same")
+    s.add_argument("--recordings", type=_positive(int, "--recordings"), default=None, metavar="N",
+                   help="number of recordings before the cooling tails (default 15; fewer for a "
+                        "quick try -- the diagnosis is weaker on few)")
+    s.add_argument("--duration", type=_positive(float, "--duration"), default=None, metavar="S",
+                   help="length of each recording, s (default 30; at least 8)")
+    s.add_argument("--yes", action="store_true",
+                   help="do not ask for supply changes (the supply follows on its own, or you "
+                        "set it unprompted)")
+    s.add_argument("--supply-cmd", metavar="CMD", default=None,
+                   help="shell command that sets a programmable supply, {amps} replaced by the "
+                        "current (e.g. the emulator's: 'echo {amps} > FILE'); no prompts")
+    s.add_argument("--cutoff", type=_positive(float, "--cutoff"), default=DEFAULT_CUTOFF_C,
+                   metavar="C", help=f"over-temperature cut, deg C (default {DEFAULT_CUTOFF_C:.0f})")
+    _add_rig_args(s, cooldown_flag=False)
+
     i = sub.add_parser("info", help="firmware version, safety limits, live status and faults",
                        description="Say hello to the firmware and print its identity, safety "
                                    "configuration and one status sample (relays, faults, IMU).")
     i.add_argument("--port", required=True, help="serial port or pyserial URL of the UNO")
     i.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+    e = sub.add_parser(
+        "emulate", help="a rig without hardware: the firmware in simavr, the simulator as neck",
+        description="Build the real firmware (make -C firmware; needs the AVR toolchain and "
+                    "simavr) and run it in simavr with the simulator playing the neck, in real "
+                    "time, until Ctrl-C. Prints the port to pass to the other commands and the "
+                    "file that holds the emulated bench supply's current.")
+    e.add_argument("--effects", default=None, metavar="NAME[,NAME]|JSON",
+                   help="catalogue effects on the emulated neck (neck_env.effects) at their "
+                        "typical magnitudes, or a JSON object name -> parameters, e.g. "
+                        "'{\"imu_misalignment\": {\"yaw_deg\": 12}}'")
+    e.add_argument("--params", default=None, metavar="JSON",
+                   help="NeckParams JSON for the emulated neck (default: the calibrated model)")
+    e.add_argument("--thermistors", action="store_true",
+                   help="fit thermistors on all three springs (pass --thermistors 0b111 to the "
+                        "other commands then)")
+    e.add_argument("--supply-current", type=_positive(float, "--supply-current"), default=7.0,
+                   metavar="A", help="the bench supply's current at start, A (default 7)")
+    e.add_argument("--supply-file", default=None, metavar="FILE",
+                   help="file holding the supply current (default: a new temporary file)")
+    e.add_argument("--seed", type=int, default=0, help="seed of the IMU's noise and biases")
     return ap
 
 
@@ -199,7 +260,7 @@ def cmd_run(args: argparse.Namespace, out=print) -> int:
     link = _open_link(args.port)
     env = HardwareNeckEnv(link=link, cutoff_C=args.cutoff, thermistors=args.thermistors,
                           ambient_C=args.ambient, record_dir=args.record,
-                          cooldown_s=0.0 if args.no_cooldown else 300.0, **env_kwargs)
+                          cooldown_s=0.0 if args.no_cooldown else 300.0, say=out, **env_kwargs)
     results = []
     try:
         fw = ".".join(map(str, link.hello.fw_version))
@@ -247,13 +308,113 @@ def cmd_pulse(args: argparse.Namespace, out=print) -> int:
         r = run_pulse(link, args.muscle, args.current, args.seconds, args.cool,
                       record_dir=args.record, thermistors=args.thermistors,
                       ambient_C=args.ambient, params=args.params,
-                      cooldown=not args.no_cooldown)
+                      cooldown=not args.no_cooldown, say=out)
     finally:
         link.close()
+    rest = (f"started at rest after {r.rested_s:.0f} s" if not args.no_cooldown
+            else "started without waiting for rest (--no-cooldown)")
     out(f"max theta {r.max_theta_deg:.2f} deg at t = {r.t_max_s:.2f} s (phi {r.phi_at_max_deg:.0f} "
-        f"deg), spring up to {r.max_temperature_C:.0f} C, {r.energy_J:.0f} J"
-        + (f"; recorded {r.recording}" if r.recording else ""))
+        f"deg), spring up to {r.max_temperature_C:.0f} C, {r.energy_J:.0f} J; {rest} (theta "
+        f"{r.start_theta_deg:.2f} deg)" + (f"; recorded {r.recording}" if r.recording else ""))
     return 0
+
+
+def cmd_protocol(args: argparse.Namespace, out=print, ask: Callable[[str], str] = input) -> int:
+    from ..experiments import diagnosis_protocol
+    from .session import describe_plan, run_protocol
+
+    kw: dict[str, Any] = {}
+    if args.recordings is not None:
+        kw["n_recordings"] = args.recordings
+    if args.duration is not None:
+        kw["duration_s"] = args.duration
+    recs = diagnosis_protocol(args.seed, args.protocol, **kw)
+    plan_id = {"protocol": args.protocol, "seed": args.seed, **kw}
+    link = _open_link(args.port)
+    try:
+        out(f"protocol {args.protocol!r} (seed {args.seed}) on {args.port} into {args.record}: "
+            f"{describe_plan(recs)}")
+        res = run_protocol(link, args.record, recs, plan_id, yes=args.yes,
+                           supply_cmd=args.supply_cmd, ask=ask, say=out,
+                           thermistors=args.thermistors, ambient_C=args.ambient,
+                           params=args.params, cutoff_C=args.cutoff)
+    finally:
+        link.close()
+    out(f"protocol complete: {len(res.recorded)} recorded now, {len(res.skipped)} from before, "
+        f"{res.elapsed_s / 60:.1f} min ({res.rested_s / 60:.1f} min waiting for rest); "
+        f"diagnose with: neck-gap {args.record} --json report.json")
+    return 0
+
+
+def parse_effects(text: str | None) -> dict[str, dict[str, float]]:
+    """``--effects``: comma-separated catalogue names (typical magnitudes), a JSON object
+    name -> parameters, or a JSON file holding one."""
+    from .. import effects as fx
+
+    if not text:
+        return {}
+    t = text.strip()
+    if not t.startswith("{") and t.endswith(".json"):
+        t = Path(t).read_text()
+    if t.startswith("{"):
+        try:
+            d = json.loads(t)
+        except ValueError as exc:
+            raise ValueError(f"--effects: not valid JSON ({exc})") from None
+    else:
+        d = {n.strip(): {} for n in t.split(",") if n.strip()}
+    return fx.check_effects(d)
+
+
+def cmd_emulate(args: argparse.Namespace, out=print) -> int:
+    import threading
+    import time
+
+    from ..params import NeckParams
+    from .sim_neck import EmulatedRig
+    from .simavr import HarnessUnavailable
+
+    effects = parse_effects(args.effects)
+    params = NeckParams.load(args.params) if args.params else None
+    # stop cleanly (emulator process too) on Ctrl-C and on kill/SIGTERM, also when started in
+    # the background, where a shell leaves SIGINT ignored
+    import signal
+
+    def _stop(signum, frame):
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, _stop)
+    try:
+        rig = EmulatedRig(args.supply_current, params=params, effects=effects,
+                          thermistors=0b111 if args.thermistors else 0, seed=args.seed,
+                          supply_file=args.supply_file)
+    except HarnessUnavailable as exc:
+        raise RigError(f"cannot build the emulated rig: {exc}. Install the AVR toolchain and "
+                       f"simavr (Debian/Ubuntu: apt-get install gcc-avr avr-libc binutils-avr "
+                       f"simavr libsimavr-dev arduino-core-avr make gcc), then retry") from None
+    try:
+        desc = ", ".join(f"{k}({', '.join(f'{p}={v:g}' for p, v in ps.items())})"
+                         for k, ps in effects.items()) or "none"
+        out(f"emulated rig running (firmware in simavr, simulated neck; effects: {desc}"
+            f"{'; thermistors on A0-A2' if args.thermistors else ''})")
+        out(f"port: {rig.port}")
+        out(f"bench supply: {rig.supply_current_A:g} A, set with: echo AMPS > {rig.supply_file}")
+        out(f"  e.g. python -m neck_env.rig protocol --port {rig.port} --record DIR "
+            f"--supply-cmd 'echo {{amps}} > {rig.supply_file}'")
+        out("Ctrl-C stops it")
+        sys.stdout.flush()  # a script reading the port from a pipe sees it now
+        shown = None
+        while True:
+            rig.check()
+            if rig.supply_error != shown:
+                shown = rig.supply_error
+                if shown:
+                    out(f"supply file ignored: {shown}")
+            time.sleep(0.2)
+    finally:
+        rig.close()
 
 
 def info_dict(link) -> dict[str, Any]:
@@ -273,7 +434,10 @@ def info_dict(link) -> dict[str, Any]:
                    "ontime_cap_ms": h.ontime_cap_ms, "lockout_ms": h.lockout_ms,
                    "duty_window_ms": h.duty_window_ms, "duty_max_permille": h.duty_max_permille,
                    "over_temperature_cut_C": round(P.ntc_adc_to_celsius(h.therm_cut_adc), 1),
-                   "over_temperature_release_C": round(P.ntc_adc_to_celsius(h.therm_release_adc), 1)},
+                   "over_temperature_release_C": round(P.ntc_adc_to_celsius(h.therm_release_adc), 1),
+                   # what the cut above means: the firmware's own default until a host's CONFIG
+                   "firmware_default_cut_C": FIRMWARE_DEFAULT_CUT_C,
+                   "host_cutoff_C": DEFAULT_CUTOFF_C},
         "status": {"mcu_time_s": st.t_ms / 1000.0, "relays": st.relays, "blocked": st.blocked,
                    "faults": fault_names(st.faults), "bad_frames": st.bad_frames,
                    "watchdog_trips": st.wdt_trips, "imu_errors": st.imu_errors,
@@ -305,6 +469,10 @@ def cmd_info(args: argparse.Namespace, out=print) -> int:
         f"<= {lim['duty_max_permille'] / 10:g} % of {lim['duty_window_ms']} ms, "
         f"over-temperature cut {lim['over_temperature_cut_C']} C (release "
         f"{lim['over_temperature_release_C']} C)")
+    out(f"  (the cut above is what the firmware holds now: {FIRMWARE_DEFAULT_CUT_C:.0f} C is its "
+        f"default until a host configures it. run/pulse/protocol set it to --cutoff, default "
+        f"{DEFAULT_CUTOFF_C:.0f} C, when thermistors are fitted; without thermistors the host "
+        f"cuts at --cutoff on its thermal estimate)")
     out(f"status: relays 0b{st['relays']:03b}, faults {', '.join(st['faults']) or 'none'}, "
         f"bad frames {st['bad_frames']}, watchdog trips {st['watchdog_trips']}, MCU up "
         f"{st['mcu_time_s']:.1f} s")
@@ -318,7 +486,9 @@ def cmd_info(args: argparse.Namespace, out=print) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "pulse": cmd_pulse, "info": cmd_info}
+COMMANDS = {"run": cmd_run, "pulse": cmd_pulse, "protocol": cmd_protocol, "info": cmd_info,
+            "emulate": cmd_emulate}
+FIRMWARE_DEFAULT_CUT_C = 110.0  # firmware/src/config.h THERM_CUT_ADC default, before CONFIG
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -326,8 +496,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return COMMANDS[args.command](args)
     except KeyboardInterrupt:
-        print("interrupted: relays commanded off", file=sys.stderr)
+        print("emulator stopped" if args.command == "emulate" else
+              "interrupted: relays commanded off", file=sys.stderr)
         return 130
-    except (RigError, ValueError, FileNotFoundError, OSError) as exc:
+    except (RigError, RuntimeError, ValueError, FileNotFoundError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -11,7 +11,7 @@ from __future__ import annotations
 from . import protocol as P
 
 __all__ = ["RigError", "RigLinkLost", "RigTimeout", "RigRefused", "RigImuError",
-           "RigFirmwareReset", "RigInterrupted", "raise_for_faults", "fault_names"]
+           "RigFirmwareReset", "RigNotAtRest", "RigInterrupted", "raise_for_faults", "fault_names"]
 
 
 class RigError(RuntimeError):
@@ -36,6 +36,10 @@ class RigImuError(RigError):
 
 class RigFirmwareReset(RigError):
     """The MCU restarted mid-run (watchdog, brown-out, reset button): commands were lost."""
+
+
+class RigNotAtRest(RigError):
+    """The neck did not come to rest (springs near ambient, tilt at its rest reading) in time."""
 
 
 class RigInterrupted(KeyboardInterrupt):

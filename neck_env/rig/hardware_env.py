@@ -12,13 +12,15 @@ from __future__ import annotations
 import math
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from ..experiments import REST, RestCriterion
 from ..envs.core import (DEFAULT_BUDGET_J, DEFAULT_CUTOFF_C, DEFAULT_DT_S, DEFAULT_EPISODE_S,
                          DEFAULT_SUPPLY_A, MAX_CURRENT_A, TaskConfig, resolve_params,
                          validate_action)
@@ -28,11 +30,12 @@ from ..params import NeckParams
 from ..recording import RecordingWriter, write_meta
 from ..targets import TargetSpec, sample_targets, target_at, tracking_error_deg
 from . import protocol as P
-from .errors import RigFirmwareReset
+from .errors import RigFirmwareReset, RigNotAtRest
 from .link import RigError, RigLink, RigLinkLost, RigRefused, RigTimeout
+from .memory import RigMemory
 from .thermal_estimate import ThermalEstimate
 
-__all__ = ["HardwareNeckEnv", "RECORD_COLUMNS"]
+__all__ = ["HardwareNeckEnv", "RECORD_COLUMNS", "RestResult"]
 
 #: Columns of a rig recording: the contract of design.md 2.2 first, then what the rig adds.
 RECORD_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg",
@@ -41,6 +44,25 @@ RECORD_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg",
 THERMISTOR_COLUMNS = ("T1", "T2", "T3")
 TELEMETRY_TIMEOUT_S = 0.3  # no telemetry for this long while running: the link is dead
 FIRST_SAMPLE_TIMEOUT_S = 1.0
+MEMORY_SAVE_PERIOD_S = 1.0  # a killed host loses at most this much of the springs' history
+
+
+@dataclass(frozen=True)
+class RestResult:
+    """Outcome of a wait for rest (``HardwareNeckEnv.wait_for_rest``)."""
+
+    at_rest: bool
+    waited_s: float
+    hottest_excess_K: float  # hottest spring above ambient at the end (thermistor or estimate)
+    tilt_off_deg: float  # tilt from the rest reading (or from the window's start when unknown)
+    rest_tilt_deg: tuple[float, float] | None  # the tilt vector held at rest (mean of the window)
+    temperature_source: str
+
+    def describe(self, criterion: RestCriterion = REST) -> str:
+        return (f"hottest spring {self.hottest_excess_K:+.1f} K from ambient (rest: within "
+                f"{criterion.temperature_K:g} K, {self.temperature_source}), tilt "
+                f"{self.tilt_off_deg:.2f} deg from the rest reading (rest: within "
+                f"{criterion.tilt_deg:g} deg, held {criterion.settle_s:g} s)")
 
 
 def _warm_up_compiled(estimate: ThermalEstimate) -> None:
@@ -85,8 +107,12 @@ class HardwareNeckEnv(gym.Env):
     ## Starting state
 
     `reset` switches everything off and, unless `cooldown_s = 0`, waits (relays off) until
-    the springs are within `cooldown_margin_C` of ambient (thermistors, else the estimate) or
-    `cooldown_s` has passed. The target is upright for the first 2 s.
+    the neck is at rest (``wait_for_rest``: the springs within `cooldown_margin_C` of ambient
+    -- thermistors, else the estimate --, and the tilt steady, or back at a given rest reading,
+    for ``REST.settle_s``) or `cooldown_s` has passed (then it goes on, or with
+    ``options={"require_rest": True}`` raises ``RigNotAtRest``). The estimate remembers the
+    springs across processes (``neck_env.rig.memory``): a second command right after a first
+    waits for the springs the first one heated. The target is upright for the first 2 s.
 
     ## Episode end
 
@@ -133,7 +159,8 @@ class HardwareNeckEnv(gym.Env):
                  params: NeckParams | str | None = None, targets: TargetSpec | None = None,
                  thermistors: int = 0, stream_hz: int = 100, ambient_C: float | None = None,
                  cooldown_s: float = 300.0, cooldown_margin_C: float = 3.0,
-                 record_dir: str | Path | None = None, open_timeout: float = 4.0) -> None:
+                 record_dir: str | Path | None = None, open_timeout: float = 4.0,
+                 remember: bool = True, say: Callable[[str], None] | None = None) -> None:
         if (port is None) == (link is None):
             raise ValueError("give exactly one of port (device path or pyserial URL) or link")
         self.task = TaskConfig(action_mode=action_mode, dt=dt, episode_s=episode_s,
@@ -168,11 +195,18 @@ class HardwareNeckEnv(gym.Env):
         self._rows: list[dict[str, Any]] = []
         self._reset_telemetry_state()
         self._writer: RecordingWriter | None = None
+        self._record_as: str | None = None
         self._episode_active = False
         self._closed = False
         self._boots_seen = 0
         self.recordings: list[Path] = []
         self.link = link if link is not None else RigLink(port, open_timeout=open_timeout)
+        self.say = say
+        self.last_rest: RestResult | None = None
+        self.memory = RigMemory(self.link.port) if remember else None
+        self.memory_note = self.memory.restore(self.estimate) if self.memory else ""
+        self._est_clock = time.monotonic()
+        self._memory_saved = self._est_clock
         self.link.on_telemetry = self._on_telemetry
         try:
             self._configure()
@@ -275,6 +309,13 @@ class HardwareNeckEnv(gym.Env):
             self.link.all_off()
         finally:
             self._close_recording()
+            self._remember()
+
+    def _remember(self) -> None:
+        if self.memory is not None:
+            self._catch_up_estimate()
+            self.memory.save(self.estimate)
+            self._memory_saved = time.monotonic()
 
     def _check_faults(self, tm: P.Telemetry) -> None:
         if tm.faults & P.Fault.imu_any():
@@ -310,11 +351,14 @@ class HardwareNeckEnv(gym.Env):
                         "temperatures": ("T1..T3: thermistors; " if self.thermistor_mask else "")
                         + "T1_est..T3_est: host thermal model on the commanded currents",
                         "currents": "i1..i3: supply setpoint while the relay pin reads on"}})
-        n = len(list(self.record_dir.glob("rec_*.csv"))) + 1
-        path = self.record_dir / f"rec_{n:02d}.csv"
-        while path.exists():
-            n += 1
+        if self._record_as is not None:
+            path = self.record_dir / self._record_as
+        else:
+            n = len(list(self.record_dir.glob("rec_*.csv"))) + 1
             path = self.record_dir / f"rec_{n:02d}.csv"
+            while path.exists():
+                n += 1
+                path = self.record_dir / f"rec_{n:02d}.csv"
         cols = list(RECORD_COLUMNS)
         if self.thermistor_mask:
             cols[6:6] = THERMISTOR_COLUMNS
@@ -337,9 +381,19 @@ class HardwareNeckEnv(gym.Env):
 
     # -- gymnasium API ------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode (see the class docs). ``options`` (all optional):
+        ``record_as`` (file name in ``record_dir`` for this episode's recording),
+        ``rest_tilt_deg`` (the tilt vector read at rest: wait until the tilt is back within
+        ``REST.tilt_deg`` of it), ``require_rest`` (raise ``RigNotAtRest`` instead of going on
+        when the neck is not at rest after ``cooldown_s``)."""
         super().reset(seed=seed)
         self._check_open()
         self._episode_active = False
+        opts = dict(options or {})
+        unknown = set(opts) - {"record_as", "rest_tilt_deg", "require_rest"}
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {sorted(unknown)}")
+        self._record_as = opts.get("record_as")
         try:
             self._close_recording()
             if self.link._lost is not None:
@@ -352,7 +406,7 @@ class HardwareNeckEnv(gym.Env):
             self._boots_seen = len(self.link.boots)
             tm = self._wait_telemetry(self._samples, FIRST_SAMPLE_TIMEOUT_S)
             self._check_faults(tm)
-            self._cool_down()
+            self._cool_down(opts.get("rest_tilt_deg"), bool(opts.get("require_rest", False)))
             spec = self.task.targets
             m = spec.max_segments(self.task.episode_s)
             # The simulated env's derivation (its np_random draws the core's seed, whose
@@ -388,19 +442,72 @@ class HardwareNeckEnv(gym.Env):
             self.estimate.advance(np.zeros(3), now - self._est_clock)
         self._est_clock = now
 
-    def _cool_down(self) -> None:
+    def _cool_down(self, rest_tilt_deg=None, require: bool = False) -> None:
         self._catch_up_estimate()
         if self.cooldown_s <= 0:
+            self.last_rest = None
             return
-        t_end = time.monotonic() + self.cooldown_s
+        crit = RestCriterion(tilt_deg=REST.tilt_deg, temperature_K=self.cooldown_margin_C,
+                             settle_s=REST.settle_s, timeout_s=self.cooldown_s)
+        r = self.wait_for_rest(crit, rest_tilt_deg)
+        self.last_rest = r
+        if not r.at_rest and require:
+            raise RigNotAtRest(f"{self.link.port}: the neck is not at rest after "
+                               f"{r.waited_s:.0f} s: {r.describe(crit)}; relays off. Check the "
+                               f"springs cool freely (nothing touching, no heat source) and the "
+                               f"IMU has not moved on its mount")
+
+    def wait_for_rest(self, criterion: RestCriterion = REST,
+                      rest_tilt_deg: tuple[float, float] | None = None) -> RestResult:
+        """Wait, relays off, until the neck is at rest or ``criterion.timeout_s`` has passed.
+
+        At rest: every spring within ``criterion.temperature_K`` of ambient (thermistors where
+        fitted, else the estimate) and the fused IMU tilt within ``criterion.tilt_deg`` of
+        ``rest_tilt_deg`` (a tilt vector, deg) -- or, when that is not known, of the tilt at
+        the start of the window (a neck still creeping back moves) -- both held for
+        ``criterion.settle_s``. Says how it is going every 15 s through ``say``."""
+        t0 = time.monotonic()
+        held_since: float | None = None
+        anchor: tuple[float, float] | None = None
+        acc: list[tuple[float, float]] = []
+        last_say = t0
+        ambient = self.estimate.ambient_C
         while True:
             now = time.monotonic()
             self._catch_up_estimate()
-            T, _ = self._temperatures(self._last)
-            if np.all(T <= self.estimate.ambient_C + self.cooldown_margin_C) or now >= t_end:
-                return
+            T, source = self._temperatures(self._last)
+            excess = float(np.max(T - ambient))
+            with self._lock:
+                tilt = self._tilt
+            ref = rest_tilt_deg if rest_tilt_deg is not None else anchor
+            off = (math.inf if tilt is None else 0.0 if ref is None
+                   else math.hypot(tilt[0] - ref[0], tilt[1] - ref[1]))
+            ok = tilt is not None and excess <= criterion.temperature_K and off <= criterion.tilt_deg
+            if ok:
+                if held_since is None:
+                    held_since, acc = now, []
+                    if rest_tilt_deg is None:
+                        anchor = tilt
+                acc.append(tilt)
+                if now - held_since >= criterion.settle_s:
+                    mean = (float(np.mean([a[0] for a in acc])), float(np.mean([a[1] for a in acc])))
+                    return RestResult(True, now - t0, excess, off, mean, source)
+            else:
+                held_since, anchor = None, None
+            if now - t0 >= criterion.timeout_s:
+                return RestResult(False, now - t0, excess, off, None, source)
+            if self.say is not None and now - last_say >= 15.0:
+                last_say = now
+                what = (f"hottest spring {T.max():.0f} C (rest: <= {ambient + criterion.temperature_K:.0f} C)"
+                        if excess > criterion.temperature_K else "springs at ambient")
+                if rest_tilt_deg is not None and off > criterion.tilt_deg:
+                    what += f", tilt {off:.1f} deg from the rest reading (rest: <= {criterion.tilt_deg:g})"
+                elif rest_tilt_deg is None and not ok and excess <= criterion.temperature_K:
+                    what += ", tilt still moving"
+                self.say(f"waiting for the neck to rest: {what} -- {now - t0:.0f} s "
+                         f"(gives up at {criterion.timeout_s:.0f} s)")
             self.link.keepalive()
-            time.sleep(0.1)
+            time.sleep(0.05)
 
     def step(self, action):
         self._check_open()
@@ -475,6 +582,8 @@ class HardwareNeckEnv(gym.Env):
         self._energy_J += self.estimate.advance(rms, span_s)
         self._est_clock += span_s
         self._catch_up_estimate()
+        if self.memory is not None and time.monotonic() - self._memory_saved >= MEMORY_SAVE_PERIOD_S:
+            self._remember()
         if self._energy_J >= self.task.energy_budget_J - 1e-9:
             self._exhausted = True
         t = self._k * self.dt
@@ -488,6 +597,7 @@ class HardwareNeckEnv(gym.Env):
             self._episode_active = False
             self.link.command(P.SetRelays(0))
             self._close_recording()
+            self._remember()
         return obs, float(reward), False, truncated, info
 
     def _observe(self, rms: np.ndarray, tm: P.Telemetry, refused: int, late: float):
@@ -528,3 +638,20 @@ class HardwareNeckEnv(gym.Env):
             self.link.close()
         finally:
             self._close_recording()
+            self._remember()
+
+    def set_episode(self, *, supply_current_A: float | None = None,
+                    episode_s: float | None = None) -> None:
+        """Between episodes: the bench supply was set to another current, or the next episode
+        has another length (the rig's ``protocol`` command records a protocol this way on one
+        link and one thermal estimate). Takes effect at the next ``reset``."""
+        if self._episode_active:
+            raise RuntimeError("set_episode between episodes only")
+        from dataclasses import replace
+
+        changes: dict[str, float] = {}
+        if supply_current_A is not None:
+            changes["supply_current_A"] = float(supply_current_A)
+        if episode_s is not None:
+            changes["episode_s"] = float(episode_s)
+        self.task = replace(self.task, **changes)

@@ -1,4 +1,7 @@
-"""The simulator playing the physical neck for the hardware-in-the-loop harness.
+"""The emulated rig: the simulator playing the physical neck around the real firmware.
+
+This is what ``python -m neck_env.rig emulate`` runs (:class:`EmulatedRig`), and what the HIL
+tests run: a rig to try every ``rig`` command on without hardware.
 
 :class:`SimulatedNeck` closes the loop around the real firmware running in simavr
 (``neck_env.rig.simavr.SimavrHarness``): relay pin changes (time-stamped in simulated MCU time)
@@ -7,11 +10,20 @@ MPU6050 accelerometer and gyro registers (``neck_env.sensors.imu_reading``, plus
 and biases of ``SensorParams``) and, optionally, thermistor ADC counts. The physics clock is
 the emulator's own clock, so the firmware's timing (duty windows, watchdogs) and the plant
 agree whatever the emulator's speed; the host sees the same serial traffic as from a real UNO.
+
+The neck can carry the catalogue's effects (``neck_env.effects``: plant effects through
+``apply_to_constants``, ``imu_misalignment`` through ``imu_mount``, ``actuation_delay`` by
+applying relay edges late) and any ``NeckParams``; its "bench supply" current can be changed
+while it runs (:attr:`SimulatedNeck.supply_current_A`; ``EmulatedRig`` reads it from a file, so
+``rig protocol --supply-cmd`` can set it like a programmable supply).
 """
 
 from __future__ import annotations
 
+import os
+import tempfile
 import threading
+from pathlib import Path
 from typing import Mapping
 
 import numpy as np
@@ -22,9 +34,9 @@ from ..physics import layout as L
 from ..physics.plant import constants_from_params, initial_state, step_inplace
 from ..sensors import SensorParams, imu_reading
 from . import protocol as P
-from .simavr import HarnessError, SimavrHarness
+from .simavr import HarnessError, SimavrHarness, build
 
-__all__ = ["SimulatedNeck"]
+__all__ = ["SimulatedNeck", "EmulatedRig"]
 
 PLANT_DT_S = 0.01
 
@@ -52,6 +64,8 @@ class SimulatedNeck:
         self.consts = np.ascontiguousarray(fx.apply_to_constants(
             consts, {k: v for k, v in eff.items() if fx.EFFECTS[k].kind == "plant"}))
         self.mount = np.ascontiguousarray(fx.imu_mount(eff))
+        self.delay_us = int(round(fx.delay_s(eff) * 1e6))  # relay edges act this late
+        self.effects = eff
         self.x = initial_state(self.consts, 1)
         self.sensors = sensors
         self.rng = np.random.default_rng(seed)
@@ -73,6 +87,18 @@ class SimulatedNeck:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.lock = threading.Lock()
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Compile (or load from numba's cache) the kernels now, on scratch copies: compiling
+        holds the GIL for seconds, and in the running loop that would stall the harness's
+        reader thread, then the harness, then the host's writes to the pty."""
+        x = self.x.copy()
+        step_inplace(self.consts, x, np.zeros((1, 3)), PLANT_DT_S, 1, self._left.copy(),
+                     np.empty_like(self._out))
+        tip, dtip, rot, v, w, r = (a.copy() for a in self._scratch)
+        q = x[0, L.S_Q:L.S_Q + 3].copy()
+        imu_reading(q, q, PLANT_DT_S, self.mount, tip, dtip, rot, v, w, r)
 
     # -- one update ---------------------------------------------------------------------------
     def update(self) -> None:
@@ -88,7 +114,8 @@ class SimulatedNeck:
         while self.t_us < now:
             t_end = min(now, self.t_us + int(PLANT_DT_S * 1e6))
             # relay state at the start of the sub-step (10 ms resolution of switching)
-            while self._event_i < len(events) and events[self._event_i].t_us <= self.t_us:
+            while (self._event_i < len(events)
+                   and events[self._event_i].t_us + self.delay_us <= self.t_us):
                 ev = events[self._event_i]
                 pins = list(self._pins)
                 pins[ev.muscle] = ev.on
@@ -152,3 +179,82 @@ class SimulatedNeck:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(2.0)
+
+
+class EmulatedRig:
+    """The firmware in simavr with a :class:`SimulatedNeck`: a rig on a pseudo-terminal.
+
+    ``port`` is the path to pass as ``--port`` to every ``rig`` command. The bench supply's
+    current is the number in :attr:`supply_file` (write another, e.g. ``echo 6.5 > FILE``, and
+    it applies within 0.2 s). Builds the firmware first (``make -C firmware``; raises
+    ``HarnessUnavailable`` naming what to install when the AVR toolchain or simavr is missing).
+    Use as a context manager, or call :meth:`close`.
+    """
+
+    def __init__(self, supply_current_A: float = 7.0, params: NeckParams | None = None,
+                 effects: Mapping[str, Mapping[str, float]] | None = None, thermistors: int = 0,
+                 seed: int = 0, supply_file: str | os.PathLike[str] | None = None) -> None:
+        if not 0 < supply_current_A <= 8.0:
+            raise ValueError(f"supply current must lie in (0, 8] A, got {supply_current_A}")
+        if supply_file is None:
+            self._tmp = tempfile.mkdtemp(prefix="neck-emulator-")
+            supply_file = Path(self._tmp) / "supply_A"
+        self.supply_file = Path(supply_file)
+        self.supply_file.write_text(f"{supply_current_A:g}\n")
+        self._mtime = self.supply_file.stat().st_mtime_ns
+        elf, hil = build()
+        self.harness = SimavrHarness(elf, hil, speed=1.0)
+        try:
+            self.neck = SimulatedNeck(self.harness, supply_current_A=supply_current_A,
+                                      params=params, effects=effects, thermistors=thermistors,
+                                      seed=seed).start()
+            self.harness.run()
+        except BaseException:
+            self.harness.close()
+            raise
+        self.port: str = self.harness.pty_path
+        self.supply_error: str | None = None
+        self._stop = threading.Event()
+        self._watch = threading.Thread(target=self._watch_supply, name="emulated-supply",
+                                       daemon=True)
+        self._watch.start()
+
+    def _watch_supply(self) -> None:
+        while not self._stop.wait(0.1):
+            try:
+                m = self.supply_file.stat().st_mtime_ns
+                if m == self._mtime:
+                    continue
+                text = self.supply_file.read_text().strip()
+                if not text:  # a writer's truncation before its write: read again next time
+                    continue
+                self._mtime = m
+                amps = float(text)
+                if not 0 < amps <= 8.0:
+                    raise ValueError(f"{amps} A outside (0, 8]")
+                self.neck.supply_current_A = amps
+                self.supply_error = None
+            except (OSError, ValueError) as exc:
+                self.supply_error = f"{self.supply_file}: {exc}"
+
+    @property
+    def supply_current_A(self) -> float:
+        return self.neck.supply_current_A
+
+    def check(self) -> None:
+        """Raise if the emulator or the simulated neck has failed."""
+        if self.neck.error is not None:
+            raise HarnessError(f"simulated neck failed: {self.neck.error!r}")
+        if self.harness._proc.poll() is not None:
+            raise HarnessError(f"emulator exited; stderr: {self.harness.stderr_tail()}")
+
+    def close(self) -> None:
+        self._stop.set()
+        self.neck.stop()
+        self.harness.close()
+
+    def __enter__(self) -> "EmulatedRig":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

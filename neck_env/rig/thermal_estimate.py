@@ -87,3 +87,17 @@ class ThermalEstimate:
             spent += float(self._out[0, L.O_POWER:L.O_POWER + 3].sum()) * h
         self.energy_J += spent
         return spent
+
+    # -- across processes (``neck_env.rig.memory``) ------------------------------------------
+    def state_vector(self) -> list[float]:
+        """The plant state of the estimate, to be restored by :meth:`load_state_vector`."""
+        return [float(v) for v in self._x[0]]
+
+    def load_state_vector(self, values) -> None:
+        """Restore a state saved by :meth:`state_vector` (raises ``ValueError`` if it does not
+        fit this plant: another version of the model saved it)."""
+        v = np.asarray(values, dtype=float)
+        if v.shape != self._x[0].shape or not np.all(np.isfinite(v)):
+            raise ValueError(f"saved thermal state has {v.size} values, this model needs "
+                             f"{self._x.shape[1]} finite ones")
+        self._x[0] = v
