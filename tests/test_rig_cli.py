@@ -27,7 +27,7 @@ def fw():
 def test_help_explains_every_command_and_flag():
     out = subprocess.run([sys.executable, "-m", "neck_env.rig", "--help"], capture_output=True,
                          text=True, check=True).stdout
-    for cmd in ("run", "pulse", "info"):
+    for cmd in ("run", "pulse", "protocol", "info", "emulate"):
         assert cmd in out
     parser = cli.build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
@@ -68,8 +68,27 @@ def test_info_reports_identity_limits_and_imu(fw, capsys):
     assert d["firmware_version"] == "1.1.0" and d["limits"]["heartbeat_timeout_ms"] == 250
     assert d["imu"]["ok"] and d["imu"]["tilt_theta_deg"] == 0.0
     assert d["limits"]["over_temperature_cut_C"] == pytest.approx(110, abs=1)
+    assert d["limits"]["firmware_default_cut_C"] == 110 and d["limits"]["host_cutoff_C"] == 160
     assert cli.main(["info", "--port", fw.url]) == 0
-    assert "IMU: accel" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "IMU: accel" in out
+    # the 110 C a user sees is explained, with what the commands will set
+    assert "110 C is its default until a host configures it" in out and "--cutoff, default 160 C" in out
+
+
+def test_emulate_effects_argument():
+    assert cli.parse_effects("imu_misalignment,actuation_delay") == {
+        "imu_misalignment": {"yaw_deg": 10.0, "tilt_deg": 2.0, "tilt_dir_deg": 0.0},
+        "actuation_delay": {"delay_s": 0.3}}
+    got = cli.parse_effects('{"imu_misalignment": {"yaw_deg": 12}}')
+    assert got["imu_misalignment"]["yaw_deg"] == 12.0
+    assert cli.parse_effects(None) == {}
+    with pytest.raises(ValueError, match="unknown effect 'draft'"):
+        cli.parse_effects("draft")
+    with pytest.raises(ValueError, match="yaw_deg = 40 outside its range"):
+        cli.parse_effects('{"imu_misalignment": {"yaw_deg": 40}}')
+    with pytest.raises(ValueError, match="not valid JSON"):
+        cli.parse_effects('{"imu_misalignment": ')
 
 
 def test_run_records_a_dataset(fw, tmp_path, capsys):

@@ -147,7 +147,9 @@ class HardwareNeckEnv(gym.Env):
     -- **set the supply to this current** --, `cutoff_C`, `params`, `targets`); `thermistors`
     (mask of fitted thermistors, bit k = muscle k; default none), `stream_hz` (100),
     `ambient_C` (for the estimate; default: the parameters'), `cooldown_s` (300),
-    `cooldown_margin_C` (3), `record_dir`.
+    `cooldown_margin_C` (3), `record_dir`, `remember` (carry the thermal estimate across
+    processes, ``neck_env.rig.memory``; default on), `say` (a callable for progress lines,
+    e.g. ``print``: the waits for rest say what they wait for).
     """
 
     metadata = {"render_modes": []}
@@ -504,6 +506,8 @@ class HardwareNeckEnv(gym.Env):
                     what += f", tilt {off:.1f} deg from the rest reading (rest: <= {criterion.tilt_deg:g})"
                 elif rest_tilt_deg is None and not ok and excess <= criterion.temperature_K:
                     what += ", tilt still moving"
+                elif ok:
+                    what += f", tilt at rest: holding {criterion.settle_s:g} s"
                 self.say(f"waiting for the neck to rest: {what} -- {now - t0:.0f} s "
                          f"(gives up at {criterion.timeout_s:.0f} s)")
             self.link.keepalive()
