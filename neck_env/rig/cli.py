@@ -312,7 +312,8 @@ def cmd_pulse(args: argparse.Namespace, out=print) -> int:
     finally:
         link.close()
     rest = (f"started at rest after {r.rested_s:.0f} s" if not args.no_cooldown
-            else "started without waiting for rest (--no-cooldown)")
+            else "started without waiting for rest (--no-cooldown: if the neck was still bent, "
+                 "the maximum may be that earlier bend)")
     out(f"max theta {r.max_theta_deg:.2f} deg at t = {r.t_max_s:.2f} s (phi {r.phi_at_max_deg:.0f} "
         f"deg), spring up to {r.max_temperature_C:.0f} C, {r.energy_J:.0f} J; {rest} (theta "
         f"{r.start_theta_deg:.2f} deg)" + (f"; recorded {r.recording}" if r.recording else ""))
