@@ -65,6 +65,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--recordings", type=int, default=None)
     ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--resumes", type=int, default=3,
+                    help="rerun (resume) a session that stopped on an error at most this often")
     ap.add_argument("--out", default=None, help="folder for datasets and reports (default: temp)")
     args = ap.parse_args()
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="rig_protocol_"))
@@ -76,20 +78,34 @@ def main() -> None:
     try:
         for i, n in enumerate(names):
             emus[n] = start_emulator(CASES[n], 10 + i, root / f"{n}_emulate.log")
-        for n in names:
+        def start(n: str) -> subprocess.Popen:
             _, port, supply = emus[n]
-            t0[n] = time.monotonic()
-            runs[n] = subprocess.Popen(
+            return subprocess.Popen(
                 [sys.executable, "-m", "neck_env.rig", "protocol", "--port", port,
                  "--record", str(root / n), "--protocol", args.protocol, "--seed",
                  str(args.seed), *extra, "--supply-cmd", f"echo {{amps}} > {supply}"],
-                stdout=open(root / f"{n}_protocol.log", "w"), stderr=subprocess.STDOUT, env=_env())
-        took = {}
-        for n, p in runs.items():
-            p.wait()
-            took[n] = time.monotonic() - t0[n]
-            if p.returncode != 0:
-                raise SystemExit(f"{n}: protocol failed, see {root / f'{n}_protocol.log'}")
+                stdout=open(root / f"{n}_protocol.log", "a"), stderr=subprocess.STDOUT, env=_env())
+
+        for n in names:
+            t0[n] = time.monotonic()
+            runs[n] = start(n)
+        took, resumed = {}, {n: 0 for n in names}
+        pending = set(names)
+        while pending:
+            time.sleep(1.0)
+            for n in sorted(pending):
+                if runs[n].poll() is None:
+                    continue
+                # an error (e.g. a missed reply on a loaded machine) stops the session with the
+                # relays off; a user runs the same command again and it resumes
+                if runs[n].returncode != 0 and resumed[n] < args.resumes:
+                    resumed[n] += 1
+                    runs[n] = start(n)
+                    continue
+                pending.discard(n)
+                took[n] = time.monotonic() - t0[n]
+                if runs[n].returncode != 0:
+                    raise SystemExit(f"{n}: protocol failed, see {root / f'{n}_protocol.log'}")
     finally:
         for p in runs.values():
             if p.poll() is None:
@@ -101,7 +117,7 @@ def main() -> None:
     print(f"datasets and logs in {root}")
     for n in names:
         log = (root / f"{n}_protocol.log").read_text()
-        m = re.search(r"protocol complete: .*?([\d.]+) min \(([\d.]+) min waiting for rest\)", log)
+        waits = sum(float(w) for w in re.findall(r"after (\d+) s at rest wait", log)) / 60
         t = time.monotonic()
         rep_path = root / f"{n}_report.json"
         subprocess.run([sys.executable, "-m", "neck_env.gap", str(root / n), "--json",
@@ -109,8 +125,8 @@ def main() -> None:
         gap_s = time.monotonic() - t
         rep = json.loads(rep_path.read_text())
         best = rep["effects"][0]
-        print(f"{n:18s} recording {took[n] / 60:5.1f} min ({m.group(2) if m else '?'} min waiting "
-              f"for rest), neck-gap {gap_s:4.0f} s: verdict {rep['verdict'] or '[]'}, unexplained "
+        print(f"{n:18s} recording {took[n] / 60:5.1f} min ({waits:.1f} min waiting for rest, "
+              f"{resumed[n]} resume(s) after an error), neck-gap {gap_s:4.0f} s: verdict {rep['verdict'] or '[]'}, unexplained "
               f"{rep['unexplained']}, held-out gap {best['heldout_gap_before']:.3f} -> "
               f"{best['heldout_gap_after']:.3f} deg ({best['name']}), not at rest: "
               f"{[b['recording'] for b in rep.get('not_at_rest', [])] or 'none'}")
