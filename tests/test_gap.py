@@ -224,3 +224,26 @@ def test_every_effect_nests_the_nominal_model(tmp_path):
         assert np.allclose(p_off.T, nominal.T, atol=1e-9), name
         moved = np.abs(p_on.tilt_x - nominal.tilt_x).max() + np.abs(p_on.T - nominal.T).max()
         assert moved > 1e-3, f"{name} at {u} of its range changes nothing"
+
+
+# The structurally independent rig (neck_env.gap.independent: its own spring arrangement, head
+# inertia, exponential kinetics, integrator and Table 1 calibration, baseline drawn wide): the
+# model is knowingly wrong about its structure, so nothing may be blamed on effect-free data,
+# and an effect with a signature no baseline has is still named.
+INDEPENDENT = [([], 1000), (["imu_misalignment"], 1002), (["supply_limit"], 1005)]
+
+
+@pytest.mark.parametrize("effects, seed", INDEPENDENT,
+                         ids=[e[0] if e else "none" for e, _ in INDEPENDENT])
+def test_blind_independent_rig(tmp_path, effects, seed):
+    from neck_env.gap.independent import generate as generate_independent
+
+    ds = tmp_path / "ds"
+    generate_independent(ds, effects, seed=seed, baseline="wide")
+    rep = _diagnose(ds, tmp_path)
+    _check_contract(rep)
+    if not effects:
+        assert rep["verdict"] == []
+    else:
+        assert rep["verdict"] == effects
+        assert rep["effects"][0]["name"] == effects[0]
