@@ -9,11 +9,18 @@ The experiment: read the config (rl-baselines3-zoo style YAML, one block per env
 the natively batched env (one compiled step for all rigs, see agents/sb3_env.py; the config
 handling and the env/model construction are in agents/training.py, shared with the Ray Tune
 sweep agents/sweep.py), wrap it (episode statistics, observation/reward normalization, frame
-stacking), train with evaluation and checkpoint callbacks, save. Everything lands in --out:
+stacking), train with evaluation and checkpoint callbacks, save. Everything lands in --out
+(created once the config, env and model are built, so a bad argument leaves no folder):
 
-    model.zip  best_model.zip  checkpoints/  vecnormalize.pkl  evaluations.npz
-    config.yml (the exact configuration, seed, versions and wall time)   tb/ (TensorBoard)
-    policy.zip + policy.json (deployable: agents.policy.DeployedPolicy.load)
+    model.zip  vecnormalize.pkl (with normalize)  config.yml (the exact configuration, seed,
+    versions and wall time)  policy.zip + policy.json (deployable:
+    agents.policy.DeployedPolicy.load)  tb/ (TensorBoard, unless --no-tensorboard)
+    best_model.zip + evaluations.npz  once an evaluation has run (every --eval-freq steps)
+    checkpoints/                      once a checkpoint is due (every --save-freq steps)
+
+SB3 collects whole rollouts, so a run takes --n-timesteps rounded up to a multiple of
+n_steps x n_envs (PPO, A2C) or train_freq x n_envs (SAC, TD3); the run says so, and the
+progress bar counts to that number.
 """
 
 from __future__ import annotations
@@ -30,7 +37,20 @@ import numpy as np
 import yaml
 
 from agents.training import (ALGOS, CONFIG_DIR, build_model, load_config, make_env, parse_kv,
-                             resolve_config, vecnormalize_of)
+                             resolve_config, rollout_steps, vecnormalize_of)
+
+
+def run_progress_bar(total_steps: int):
+    """SB3's progress bar, counting to the steps the run really takes (SB3's own counts to the
+    requested number and overshoots it)."""
+    from stable_baselines3.common.callbacks import ProgressBarCallback
+    from tqdm.rich import tqdm
+
+    class _Bar(ProgressBarCallback):
+        def _on_training_start(self) -> None:
+            self.pbar = tqdm(total=total_steps - self.model.num_timesteps)
+
+    return _Bar()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--config", type=Path, default=None,
                     help="YAML hyperparameters (default: agents/configs/<algo>.yml)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the envs, the networks and SB3")
-    ap.add_argument("--n-timesteps", type=float, default=None, help="override the config's n_timesteps")
+    ap.add_argument("--n-timesteps", type=float, default=None,
+                    help="override the config's n_timesteps (rounded up to whole rollouts)")
     ap.add_argument("--n-envs", type=int, default=None, help="override the config's n_envs (rigs per step)")
     ap.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY=VALUE",
                     help="NeckTrack-v0 keyword overrides, e.g. action_mode=relay energy_budget_J=1000")
@@ -55,7 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--tensorboard", action=argparse.BooleanOptionalAction, default=True,
                     help="write TensorBoard logs to <out>/tb (default: on)")
     ap.add_argument("--progress-bar", action=argparse.BooleanOptionalAction, default=True,
-                    help="show a progress bar (default: on)")
+                    help="show a progress bar up to the steps the run really takes (default: on)")
     ap.add_argument("--threads", type=int, default=1,
                     help="torch CPU threads (default: 1: small MLPs gain nothing from more, and on "
                          "a busy 2-core machine spinning OpenMP threads slowed PPO 30-fold)")
@@ -87,15 +108,24 @@ def main(argv: list[str] | None = None) -> int:
     normalize, frame_stack, unit_actions = run.normalize, run.frame_stack, run.unit_actions
 
     out = args.out or Path("runs") / f"{args.algo}_seed{args.seed}"
-    out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(args.threads)
 
-    model, env = build_model(args.algo, run, args.seed,
-                             out / "tb" if args.tensorboard else None, args.verbose)
-    eval_env = make_env(4, args.seed + 10_000, cfg["env_kwargs"], normalize, frame_stack, False,
-                        unit_actions)
+    # Everything that can reject an argument runs before the run folder exists.
+    try:
+        model, env = build_model(args.algo, run, args.seed,
+                                 out / "tb" if args.tensorboard else None, args.verbose)
+        eval_env = make_env(4, args.seed + 10_000, cfg["env_kwargs"], normalize, frame_stack,
+                            False, unit_actions, run.gamma)
+    except (ValueError, TypeError) as exc:  # a bad --env-kwargs / --hyperparams value
+        raise SystemExit(f"train.py: {exc}") from None
+    chunk = rollout_steps(model)
+    steps = -(-n_timesteps // chunk) * chunk
+    if steps != n_timesteps:
+        print(f"note: {n_timesteps:,} steps requested; {args.algo.upper()} collects whole rollouts "
+              f"of {chunk:,} env steps, so the run takes {steps:,}")
+    out.mkdir(parents=True, exist_ok=True)
 
-    callbacks = []
+    callbacks = [run_progress_bar(steps)] if args.progress_bar else []
     if args.eval_freq > 0:
         callbacks.append(EvalCallback(eval_env, n_eval_episodes=args.eval_episodes,
                                       eval_freq=max(args.eval_freq // n_envs, 1),
@@ -107,8 +137,8 @@ def main(argv: list[str] | None = None) -> int:
                                             save_vecnormalize=normalize))
 
     started = time.time()
-    model.learn(total_timesteps=n_timesteps, callback=callbacks, progress_bar=args.progress_bar,
-                tb_log_name=args.algo)
+    # total_timesteps stays as requested: the learning-rate schedules are fractions of it
+    model.learn(total_timesteps=n_timesteps, callback=callbacks, tb_log_name=args.algo)
     wall = time.time() - started
 
     model.save(str(out / "model.zip"))

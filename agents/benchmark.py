@@ -67,10 +67,11 @@ from typing import Any, Callable
 import numpy as np
 
 from neck_env.envs import NeckTrackEnv
-from neck_env.envs.core import DEFAULT_BUDGET_J, MAX_CURRENT_A
+from neck_env.task import DEFAULT_BUDGET_J
 
 from .controllers import CONTROLLERS, make_controller
 from .distributed import LOCAL, add_ray_argument, fan_out
+from .policy import DeployedPolicy
 
 DEFAULT_CONTROLLERS = ("zero", "full_on", "open_loop", "open_loop_lead", "bang_bang", "pid", "mpc")
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
@@ -175,28 +176,9 @@ def _load_policy_agent(zip_path: Path, suite_kwargs: dict[str, Any]) -> Agent:
     for k in POLICY_INTERFACE_KEYS:
         if k in meta["env_kwargs"]:
             env_kwargs[k] = meta["env_kwargs"][k]
-    try:
-        from .policy import DeployedPolicy
-    except ImportError:  # the minimal contract: the SB3 class's load + predict
-        DeployedPolicy = None
-    if DeployedPolicy is not None:
-        pol = DeployedPolicy.load(zip_path)
-        reset, predict = (lambda seed: pol.reset()), pol.act
-    else:
-        import stable_baselines3 as sb3
-
-        model = getattr(sb3, str(meta["algo"]).upper()).load(str(zip_path), device="cpu")
-        reset = lambda seed: None
-        predict = lambda obs: model.predict(obs, deterministic=True)[0]
-    mode = env_kwargs.get("action_mode", "current")
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        a = np.asarray(predict(obs))
-        if mode == "relay":
-            return (a > 0.5).astype(np.int8)
-        return np.clip(a, 0.0, MAX_CURRENT_A).astype(np.float32)
-
-    return Agent(zip_path.stem, "learned", env_kwargs, reset, act,
+    pol = DeployedPolicy.load(zip_path)
+    # actions outside the Box are the env's to clip (neck_env.task.Task.currents_A)
+    return Agent(zip_path.stem, "learned", env_kwargs, lambda seed: pol.reset(), pol.act,
                  {"algo": meta["algo"], "trained_env_kwargs": meta["env_kwargs"]})
 
 

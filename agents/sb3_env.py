@@ -21,21 +21,20 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from neck_env.envs import NeckTrackVectorEnv
-from neck_env.envs.core import MAX_CURRENT_A, validate_action
+from neck_env.task import MAX_CURRENT_A
 
 
 class NeckTrackSB3VecEnv(VecEnv):
     def __init__(self, num_envs: int, seed: int | None = None, unit_actions: bool = False,
                  **env_kwargs: Any):
         self.venv = NeckTrackVectorEnv(num_envs=num_envs, **env_kwargs)
-        self._mode = self.venv.task.action_mode
-        self.unit_actions = bool(unit_actions) and self._mode == "current"
+        self.task = self.venv.task
+        self.unit_actions = bool(unit_actions) and self.task.action_mode == "current"
         action_space = (spaces.Box(-1.0, 1.0, (3,), dtype=np.float32) if self.unit_actions
                         else self.venv.single_action_space)
         super().__init__(num_envs, self.venv.single_observation_space, action_space)
         self._seed = seed
         self._actions: np.ndarray | None = None
-        self._scale = self.venv.task.supply_current_A if self._mode == "relay" else 1.0
 
     def reset(self) -> np.ndarray:
         obs, _ = self.venv.reset(seed=self._seed)
@@ -50,8 +49,7 @@ class NeckTrackSB3VecEnv(VecEnv):
         actions = self._actions
         if self.unit_actions:
             actions = unit_to_current(actions)
-        cur = validate_action(actions, self._mode, self.num_envs, single=False)
-        core.step(cur * self._scale if self._scale != 1.0 else cur)
+        core.step(self.task.currents_A(actions, self.num_envs))
         obs = core.obs.copy()
         rewards = core.reward.astype(np.float32)
         dones = core.truncated.copy()

@@ -58,6 +58,11 @@ class RunSetup:
     unit_actions: bool
     algo_kwargs: dict[str, Any]
 
+    @property
+    def gamma(self) -> float:
+        """The algorithm's discount (the config's ``gamma``, else SB3's default)."""
+        return float(self.algo_kwargs.get("gamma", SB3_DEFAULT_GAMMA))
+
 
 def resolve_config(cfg: dict[str, Any]) -> RunSetup:
     cfg = dict(cfg)
@@ -75,8 +80,14 @@ def resolve_config(cfg: dict[str, Any]) -> RunSetup:
                     bool(cfg.get("unit_actions", False)), algo_kwargs)
 
 
+SB3_DEFAULT_GAMMA = 0.99  # every ALGOS class's default discount
+
+
 def make_env(n_envs: int, seed: int, env_kwargs: dict[str, Any], normalize: bool,
-             frame_stack: int, training: bool, unit_actions: bool):
+             frame_stack: int, training: bool, unit_actions: bool,
+             gamma: float = SB3_DEFAULT_GAMMA):
+    """The wrapped batched env; ``gamma``: the algorithm's discount, which VecNormalize's
+    reward scaling must use (its return estimate is discounted like the agent's)."""
     from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
 
     from agents.sb3_env import NeckTrackSB3VecEnv
@@ -84,7 +95,7 @@ def make_env(n_envs: int, seed: int, env_kwargs: dict[str, Any], normalize: bool
     venv = VecMonitor(NeckTrackSB3VecEnv(n_envs, seed=seed, unit_actions=unit_actions, **env_kwargs))
     if normalize:
         venv = VecNormalize(venv, training=training, norm_obs=True, norm_reward=training,
-                            gamma=0.995)
+                            gamma=gamma)
     if frame_stack > 1:
         venv = VecFrameStack(venv, frame_stack)
     return venv
@@ -100,7 +111,7 @@ def build_model(algo: str, run: RunSetup, seed: int, tensorboard_dir: Path | Non
         raise ValueError(f"unknown algorithm {algo!r}; known: {ALGOS}")
     set_random_seed(seed)
     env = make_env(run.n_envs, seed, run.cfg["env_kwargs"], run.normalize, run.frame_stack, True,
-                   run.unit_actions)
+                   run.unit_actions, run.gamma)
     model = getattr(sb3, algo.upper())(
         run.cfg.get("policy", "MlpPolicy"), env, seed=seed, device="cpu", verbose=verbose,
         tensorboard_log=str(tensorboard_dir) if tensorboard_dir is not None else None,
@@ -113,3 +124,15 @@ def vecnormalize_of(env, run: RunSetup):
     from stable_baselines3.common.vec_env import VecNormalize, unwrap_vec_wrapper
 
     return unwrap_vec_wrapper(env, VecNormalize) if run.normalize else None
+
+
+def rollout_steps(model) -> int:
+    """Env steps per rollout SB3 collects: ``n_steps x n_envs`` for PPO/A2C, ``train_freq x
+    n_envs`` for SAC/TD3. ``model.learn(T)`` runs whole rollouts, so it takes T rounded up to a
+    multiple of this."""
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+
+    if isinstance(model, OnPolicyAlgorithm):
+        return model.n_steps * model.n_envs
+    tf = model.train_freq
+    return model.n_envs * (tf.frequency if tf.unit.value == "step" else 1)

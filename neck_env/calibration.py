@@ -29,7 +29,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .params import DEFAULT_PARAMS_PATH, NeckParams, default_params
-from .physics.plant import DEFAULT_DT_S, constants_from_params, pulse_currents, simulate
+from .physics.plant import EXPERIMENT_DT_S, constants_from_params, pulse_currents, simulate
 
 # Paper Table 1: current (A) -> maximum bending angle (deg), one muscle on for 5 s.
 TABLE1 = ((4.0, 4.73), (5.0, 5.89), (6.0, 11.34), (7.0, 24.92), (8.0, 32.41))
@@ -112,7 +112,7 @@ class PulseResult:
 
 def run_table1(param_sets: Sequence[NeckParams], muscle: int = 0,
                currents_A: Sequence[float] = tuple(c for c, _ in TABLE1),
-               dt_s: float = DEFAULT_DT_S) -> PulseResult:
+               dt_s: float = EXPERIMENT_DT_S) -> PulseResult:
     """Simulate the Table 1 experiment for every parameter set and current in one batch."""
     amps = np.asarray(currents_A, float)
     n_sets = len(param_sets)

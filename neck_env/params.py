@@ -334,3 +334,14 @@ def default_params() -> NeckParams:
     if DEFAULT_PARAMS_PATH.exists():
         return NeckParams.load(DEFAULT_PARAMS_PATH)
     return NeckParams()
+
+
+def resolve_params(params: "NeckParams | str | Path | None") -> "NeckParams":
+    """A ``NeckParams`` from itself, a JSON path, or ``None`` (the calibrated defaults)."""
+    if params is None:
+        return default_params()
+    if isinstance(params, NeckParams):
+        return params
+    if isinstance(params, (str, Path)):
+        return NeckParams.load(params)
+    raise ValueError(f"params must be a NeckParams, a JSON path or None, got {type(params).__name__}")

@@ -1,4 +1,5 @@
-"""The recording format of rig logs and any "real" data (design.md 2.2), in one place.
+"""The recording format of rig logs and any "real" data, in one place (specification:
+``docs/recording-format.md``; this docstring summarizes it).
 
 A **recording** is a CSV file with a header line. Required columns::
 

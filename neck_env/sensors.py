@@ -7,6 +7,20 @@ host then runs the same tilt pipeline as on the rig (``observation.fuse_tilt``).
 Noise comes from a per-environment splitmix64 stream in compiled code, seeded from the env's
 ``np.random.Generator`` at reset: cheap at N = 4096 and identical for a single env and the
 same env inside a vector env.
+
+The sensor chain, written once (compiled; callers bring their own noise so each keeps its own
+random stream):
+
+* ``imu_measurement`` -- one MPU6050 sample: noise-free reading (``imu_reading``) + per-episode
+  bias + gyro drift + white noise;
+* ``imu_tilt_update`` -- the rig's tilt pipeline on that sample (``observation.fuse_tilt``;
+  the first sample of an episode initializes from the accelerometer alone);
+* ``imu_tilt_series`` -- both over a time series of poses of one rig (the batched form for
+  recorded-rate data, e.g. synthetic datasets);
+* ``accel_tilt_batch`` -- the noise-free accelerometer tilt of many poses (the filter's
+  settled value, e.g. for a model fitted to recorded tilt).
+
+The env core calls the first two per rig and step inside its compiled pass.
 """
 
 from __future__ import annotations
@@ -17,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from .physics.compile import jit
 
+from .observation import FILTER_TAU_S, fuse_tilt, tilt_from_accel
 from .physics.backbone import kinematics, rotate_bend
 
 
@@ -103,3 +118,73 @@ def imu_reading(q, q_prev, dt_s, mount, scratch_tip, scratch_dtip, scratch_rot, 
         rotate_bend(bx, by, f1, f2, v, w)
         out[j] = w[2]
         out[3 + j] = math.degrees(wx * w[0] + wy * w[1] + wz * w[2])
+
+
+@jit
+def imu_scratch():
+    """Scratch arrays of one ``imu_measurement`` call (kinematics and rotations, the noise-free
+    reading (6,)); allocate once per loop."""
+    return (np.empty(3), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3),
+            np.empty(6))
+
+
+@jit
+def imu_measurement(q, q_prev, dt_s, mount, accel_bias_g, gyro_bias_dps, gyro_drift_dps,
+                    accel_noise_g, gyro_noise_dps, scratch, out):
+    """One MPU6050 sample for pose ``q`` (3,) after a step of ``dt_s`` from ``q_prev``.
+
+    ``mount`` (3, 3): IMU axes in the head frame; ``accel_bias_g`` (3,), ``gyro_bias_dps`` (3,):
+    per-episode biases; ``gyro_drift_dps``: the drifting part of the gyro bias now (added to
+    x and y); ``accel_noise_g`` (3,), ``gyro_noise_dps`` (2,): this sample's white noise, already
+    scaled. Fills ``out`` (5,): accelerometer x, y, z (g), gyro x, y (deg/s) -- what the tilt
+    pipeline uses.
+    """
+    tip, dtip, rot, v, w, r = scratch
+    imu_reading(q, q_prev, dt_s, mount, tip, dtip, rot, v, w, r)
+    out[0] = r[0] + accel_bias_g[0] + accel_noise_g[0]
+    out[1] = r[1] + accel_bias_g[1] + accel_noise_g[1]
+    out[2] = r[2] + accel_bias_g[2] + accel_noise_g[2]
+    out[3] = r[3] + gyro_bias_dps[0] + gyro_drift_dps + gyro_noise_dps[0]
+    out[4] = r[4] + gyro_bias_dps[1] + gyro_drift_dps + gyro_noise_dps[1]
+
+
+@jit
+def imu_tilt_update(tilt_x_deg, tilt_y_deg, meas, dt_s, first):
+    """The rig's tilt pipeline on one ``imu_measurement`` sample: the new tilt vector (deg).
+    ``first``: the episode's first sample, taken from the accelerometer alone."""
+    if first:
+        return tilt_from_accel(meas[0], meas[1], meas[2])
+    return fuse_tilt(tilt_x_deg, tilt_y_deg, meas[0], meas[1], meas[2], meas[3], meas[4], dt_s,
+                     FILTER_TAU_S)
+
+
+@jit
+def imu_tilt_series(q, dt_s, mount, accel_bias_g, gyro_bias_dps, gyro_drift0_dps,
+                    gyro_drift_rate_dps_per_s, accel_noise_g, gyro_noise_dps, out):
+    """Measured tilt vectors of one rig over a pose series: ``q`` (S, 3) sampled every
+    ``dt_s``; the gyro drift is ``gyro_drift0_dps + gyro_drift_rate_dps_per_s * k * dt_s`` at
+    sample k; ``accel_noise_g`` (S, 3) and ``gyro_noise_dps`` (S, 2) are pre-drawn white noise
+    (zeros for none). The first sample's previous pose is itself. Fills ``out`` (S, 2), deg."""
+    scratch = imu_scratch()
+    meas = np.empty(5)
+    tx = 0.0
+    ty = 0.0
+    for k in range(q.shape[0]):
+        prev = q[k - 1] if k > 0 else q[0]
+        drift = gyro_drift0_dps + gyro_drift_rate_dps_per_s * k * dt_s
+        imu_measurement(q[k], prev, dt_s, mount, accel_bias_g, gyro_bias_dps, drift,
+                        accel_noise_g[k], gyro_noise_dps[k], scratch, meas)
+        tx, ty = imu_tilt_update(tx, ty, meas, dt_s, k == 0)
+        out[k, 0] = tx
+        out[k, 1] = ty
+
+
+@jit
+def accel_tilt_batch(q, mount, out):
+    """Noise-free accelerometer tilt vectors (deg) of an IMU with rotation ``mount`` (3, 3) in
+    the head frame, for poses ``q`` (M, 3): ``imu_reading`` + ``tilt_from_accel`` at rest
+    (what the filter settles to). Fills ``out`` (M, 2)."""
+    tip, dtip, rot, v, w, r = imu_scratch()
+    for k in range(q.shape[0]):
+        imu_reading(q[k], q[k], 1.0, mount, tip, dtip, rot, v, w, r)
+        out[k, 0], out[k, 1] = tilt_from_accel(r[0], r[1], r[2])

@@ -1,4 +1,4 @@
-"""The recording format (design.md 2.2): reading, validation errors naming file and line,
+"""The recording format (docs/recording-format.md): reading, validation errors naming file and line,
 datasets in name order with meta.json, and the flushing writer."""
 
 import json

@@ -19,6 +19,26 @@ def test_crc_known_vectors():
     assert P.crc16_ccitt(b"56789", P.crc16_ccitt(b"1234")) == 0x29B1
 
 
+def _crc_xmodem_update(crc: int, data: int) -> int:
+    """avr-libc's ``_crc_xmodem_update`` (util/crc16.h), its documented C equivalent: what the
+    firmware chains from 0xFFFF over VER..payload (firmware/src/neck_fw.cpp)."""
+    crc ^= data << 8
+    for _ in range(8):
+        crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
+        crc &= 0xFFFF
+    return crc
+
+
+def test_crc_is_bit_identical_to_the_firmware_routine():
+    rng = random.Random(13)
+    for n in list(range(0, 40)) + [255, 300]:
+        data = bytes(rng.randrange(256) for _ in range(n))
+        want = 0xFFFF
+        for b in data:
+            want = _crc_xmodem_update(want, b)
+        assert P.crc16_ccitt(data) == want, data.hex()
+
+
 def test_frame_layout_is_the_documented_one():
     f = P.encode(P.SetRelays(0b101), seq=7)
     # A5 5A | VER | TYPE | SEQ | LEN | mask ~mask | CRC LE over VER..payload

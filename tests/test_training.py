@@ -86,3 +86,24 @@ def test_deployed_policy_missing_json_is_a_clear_error(tmp_path):
     (tmp_path / "p.zip").write_bytes(b"")
     with pytest.raises(FileNotFoundError, match="p.json"):
         DeployedPolicy.load(tmp_path / "p.zip")
+
+
+def test_a_rejected_argument_leaves_no_run_folder(tmp_path):
+    out = tmp_path / "run"
+    res = subprocess.run([sys.executable, str(ROOT / "train.py"), "--out", str(out),
+                          "--env-kwargs", "action_mode=bogus", "--no-progress-bar"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert res.returncode != 0 and "action_mode" in res.stderr
+    assert not out.exists()
+
+
+def test_vecnormalize_discounts_like_the_agent_and_rollouts_round_up():
+    from agents.training import build_model, resolve_config, rollout_steps, vecnormalize_of
+
+    run = resolve_config({"n_envs": 2, "n_timesteps": 100, "normalize": True, "gamma": 0.9,
+                          "n_steps": 64, "batch_size": 64, "env_kwargs": {"episode_s": 2.0}})
+    model, env = build_model("ppo", run, 0, None)
+    assert vecnormalize_of(env, run).gamma == pytest.approx(0.9) == model.gamma
+    assert rollout_steps(model) == 128  # n_steps x n_envs: learn(100) takes 128 steps
+    model.learn(100)
+    assert model.num_timesteps == 128

@@ -29,10 +29,10 @@ A controller drives ONE ``NeckTrack-v0`` env (or the rig, which builds the same 
    *power* (duty = (I / I_supply)^2: Joule heat goes with I^2, and the 20 Hz switching is far
    faster than the ~20 s thermal time constant, so the springs see the average).
 
-``ControlTask`` holds what a controller must know about the task (action mode, dt, episode
-length, budget, supply current, nominal plant parameters); build it from the env kwargs a
-policy was trained with (``ControlTask.from_env_kwargs``) or from a live env
-(``ControlTask.from_env``).
+``ControlTask`` is the env's task (``neck_env.task.Task``: action mode, dt, episode length,
+budget, supply current, cut, targets -- validated there) plus the nominal plant parameters a
+controller models; build it from the env kwargs a policy was trained with
+(``ControlTask.from_env_kwargs``) or from a live env (``ControlTask.from_env``).
 """
 
 from __future__ import annotations
@@ -43,12 +43,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from neck_env.envs.core import (DEFAULT_BUDGET_J, DEFAULT_DT_S, DEFAULT_EPISODE_S,
-                                DEFAULT_SUPPLY_A, MAX_CURRENT_A, resolve_params)
 from neck_env.observation import OBS_DIM
-from neck_env.params import NeckParams
+from neck_env.params import NeckParams, resolve_params
 from neck_env.physics import layout as L
 from neck_env.physics.plant import constants_from_params
+from neck_env.task import MAX_CURRENT_A, Task
 
 # Observation indices (neck_env.observation).
 OBS_TILT = slice(0, 2)
@@ -60,51 +59,28 @@ DEFAULT_TEMP_CAP_C = 150.0
 
 
 @dataclass(frozen=True)
-class ControlTask:
-    """The task as a controller sees it (all it needs besides the observation)."""
+class ControlTask(Task):
+    """The task as a controller sees it: the env's ``Task`` and the nominal plant model."""
 
-    action_mode: str = "current"
-    dt: float = DEFAULT_DT_S
-    episode_s: float = DEFAULT_EPISODE_S
-    energy_budget_J: float = DEFAULT_BUDGET_J
-    supply_current_A: float = DEFAULT_SUPPLY_A
     params: NeckParams | None = None  # nominal plant model; None = calibrated defaults
-
-    def __post_init__(self) -> None:
-        if self.action_mode not in ("current", "relay"):
-            raise ValueError(f"action_mode must be 'current' or 'relay', got {self.action_mode!r}")
-        if not (self.dt > 0 and self.episode_s >= self.dt):
-            raise ValueError(f"need dt > 0 and episode_s >= dt, got {self.dt}, {self.episode_s}")
-        if not (self.energy_budget_J > 0):
-            raise ValueError(f"energy_budget_J must be > 0, got {self.energy_budget_J}")
-        if not (0 < self.supply_current_A <= MAX_CURRENT_A):
-            raise ValueError(f"supply_current_A must lie in (0, {MAX_CURRENT_A}]")
 
     @classmethod
     def from_env_kwargs(cls, env_kwargs: Mapping[str, Any] | None = None) -> "ControlTask":
-        """From ``NeckTrack-v0`` keyword arguments (unknown keys such as ``targets`` ignored)."""
-        kw = dict(env_kwargs or {})
-        params = kw.get("params")
-        return cls(action_mode=kw.get("action_mode", "current"),
-                   dt=float(kw.get("dt", DEFAULT_DT_S)),
-                   episode_s=float(kw.get("episode_s", DEFAULT_EPISODE_S)),
-                   energy_budget_J=float(kw.get("energy_budget_J", DEFAULT_BUDGET_J)),
-                   supply_current_A=float(kw.get("supply_current_A", DEFAULT_SUPPLY_A)),
-                   params=None if params is None else resolve_params(params))
+        """From ``NeckTrack-v0`` keyword arguments (the simulation's other keys, such as
+        ``randomize`` or ``effects``, are ignored: the controller models the nominal plant)."""
+        task, rest = Task.split_kwargs(env_kwargs)
+        params = rest.get("params")
+        return cls.of(task, None if params is None else resolve_params(params))
 
     @classmethod
     def from_env(cls, env) -> "ControlTask":
         """From a live ``NeckTrackEnv`` (wrapped or not): its task and nominal parameters."""
         core = env.unwrapped.core
-        t = core.task
-        return cls(action_mode=t.action_mode, dt=t.dt, episode_s=t.episode_s,
-                   energy_budget_J=t.energy_budget_J, supply_current_A=t.supply_current_A,
-                   params=core.params)
+        return cls.of(core.task, core.params)
 
-    @property
-    def max_current_A(self) -> float:
-        """Largest current an action can make flow."""
-        return self.supply_current_A if self.action_mode == "relay" else MAX_CURRENT_A
+    @classmethod
+    def of(cls, task: Task, params: NeckParams | None = None) -> "ControlTask":
+        return cls(**{f: getattr(task, f) for f in Task.field_names()}, params=params)
 
     def nominal_params(self) -> NeckParams:
         return resolve_params(self.params)

@@ -1,6 +1,7 @@
-"""Gymnasium environments: NeckTrack-v0, single and natively batched."""
+"""Gymnasium environments: NeckTrack-v0, single and natively batched (the task: ``neck_env.task``)."""
 
-from .core import Randomization, TaskConfig
+from ..task import Task
+from .core import Randomization
 from .neck_track import NeckTrackEnv, NeckTrackVectorEnv
 
-__all__ = ["NeckTrackEnv", "NeckTrackVectorEnv", "Randomization", "TaskConfig"]
+__all__ = ["NeckTrackEnv", "NeckTrackVectorEnv", "Randomization", "Task"]

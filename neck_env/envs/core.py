@@ -1,41 +1,37 @@
 """The batched core both NeckTrack environments run on (the single env is a core with N = 1).
 
-It owns the arrays of N rigs (plant state, sensors, targets, budgets) and advances them with two
-compiled calls per step: the plant (``physics.plant.step_inplace``) and ``_sense`` (IMU,
-complementary filter, thermistors, target, reward, observation). Sharing one core is what makes
-a vector env's rollouts equal N single envs' rollouts with the same seeds.
+It owns the arrays of N rigs (plant state, sensors, targets, budgets) and advances them with one
+compiled pass per step (``_rows``, parallel over chunks of rigs from ``PARALLEL_FROM`` up). Per
+rig, that pass applies the actuation delay, runs the plant's per-rig step
+(``physics.plant.advance_rig``: over-temperature cut, budget, springs, backbone), the sensor
+chain (``sensors.imu_measurement`` + ``imu_tilt_update``, thermistor noise), the target
+(``targets.target_at``), the reward and the observation (``observation.fill_observation``).
+Sharing one core is what makes a vector env's rollouts equal N single envs' rollouts with the
+same seeds. The task's rules and its info keys come from ``neck_env.task``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from numba import prange
 
-from ..physics.compile import jit
-
 from .. import effects as fx
-from ..observation import FILTER_TAU_S, OBS_DIM, fill_observation, fuse_tilt, tilt_from_accel
-from ..params import NeckParams, default_params
+from ..observation import OBS_DIM, fill_observation
+from ..params import NeckParams, resolve_params  # noqa: F401  (resolve_params: re-exported)
 from ..physics import layout as L
-from ..physics.plant import (PARALLEL_FROM, _advance_rig, constants_from_params, initial_state,
-                             refresh_derived)
-from ..sensors import SensorParams, imu_reading, next_normal
-from ..targets import TargetSpec, sample_targets, target_at, tracking_error_deg
-
-ACTION_MODES = ("current", "relay")
-MAX_CURRENT_A = 8.0
-DEFAULT_DT_S = 0.05
-DEFAULT_EPISODE_S = 60.0
-DEFAULT_SUPPLY_A = 7.0  # calibrated Table 1: a 5 s pulse at 7 A reaches ~24 deg (task range)
-DEFAULT_BUDGET_J = 1500.0  # see README "Energy budget"
-# Over-temperature cut, as the rig firmware does with thermistors fitted: overheated Flexinol
-# loses its trained shape. 160 C is above the ~90-150 C a controller needs for the target range.
-DEFAULT_CUTOFF_C = 160.0
+from ..physics.compile import jit
+from ..physics.plant import (PARALLEL_CHUNK, PARALLEL_FROM, advance_rig, constants_from_params,
+                             initial_state, refresh_derived, rig_scratch)
+from ..sensors import SensorParams, imu_measurement, imu_tilt_update, next_normal
+from ..targets import target_at, tracking_error_deg
+from ..task import budget_fraction_left, step_info, Task
+# Re-exported for callers of the former home of these constants (neck_env.task defines them).
+from ..task import (ACTION_MODES, CONTROL_DT_S, DEFAULT_BUDGET_J, DEFAULT_CUTOFF_C,  # noqa: F401
+                    DEFAULT_EPISODE_S, DEFAULT_SUPPLY_A, MAX_CURRENT_A)
 
 
 @dataclass(frozen=True)
@@ -78,50 +74,6 @@ class Randomization:
         row[L.AMBIENT] = u(self.ambient_C)
 
 
-@dataclass(frozen=True)
-class TaskConfig:
-    """Everything that defines a NeckTrack task instance (shared by the sim and rig envs)."""
-
-    action_mode: str = "current"
-    dt: float = DEFAULT_DT_S  # control period, s; one plant step per control step
-    episode_s: float = DEFAULT_EPISODE_S
-    energy_budget_J: float = DEFAULT_BUDGET_J
-    supply_current_A: float = DEFAULT_SUPPLY_A
-    cutoff_C: float = DEFAULT_CUTOFF_C  # a muscle's current is cut while its spring is hotter
-    targets: TargetSpec = field(default_factory=TargetSpec)
-
-    def __post_init__(self) -> None:
-        if self.action_mode not in ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
-        if not (isinstance(self.dt, (int, float)) and 0.001 <= self.dt <= 1.0):
-            raise ValueError(f"dt = {self.dt!r}: must be a number of seconds in [0.001, 1]")
-        if not (isinstance(self.episode_s, (int, float)) and self.dt <= self.episode_s < 1e6):
-            raise ValueError(f"episode_s = {self.episode_s!r}: must be >= dt and finite")
-        b = self.energy_budget_J
-        if not (isinstance(b, (int, float)) and b > 0 and not math.isnan(b)):
-            raise ValueError(f"energy_budget_J = {b!r}: must be > 0 (float('inf') for none)")
-        if not (isinstance(self.cutoff_C, (int, float)) and self.cutoff_C > 40):
-            raise ValueError(f"cutoff_C = {self.cutoff_C!r}: must be > 40 C (float('inf') for none)")
-        if not (isinstance(self.supply_current_A, (int, float))
-                and 0 < self.supply_current_A <= MAX_CURRENT_A):
-            raise ValueError(f"supply_current_A = {self.supply_current_A!r}: must lie in "
-                             f"(0, {MAX_CURRENT_A}] A")
-
-    @property
-    def episode_steps(self) -> int:
-        return int(round(self.episode_s / self.dt))
-
-
-def resolve_params(params: NeckParams | str | Path | None) -> NeckParams:
-    if params is None:
-        return default_params()
-    if isinstance(params, NeckParams):
-        return params
-    if isinstance(params, (str, Path)):
-        return NeckParams.load(params)
-    raise ValueError(f"params must be a NeckParams, a JSON path or None, got {type(params).__name__}")
-
-
 def resolve_effects(effects) -> tuple[dict[str, dict[str, float]], tuple[str, ...]]:
     """(fixed effects with parameters, names of effects sampled anew each episode)."""
     if effects is None:
@@ -135,27 +87,6 @@ def resolve_effects(effects) -> tuple[dict[str, dict[str, float]], tuple[str, ..
         if n not in fx.EFFECTS:
             raise ValueError(f"unknown effect {n!r}; known: {sorted(fx.EFFECTS)}")
     return {}, names
-
-
-def validate_action(action, mode: str, n: int, single: bool) -> np.ndarray:
-    """Check an action (batch) and return it as (N, 3) float64, or raise ValueError naming why."""
-    a = np.asarray(action)
-    want = (3,) if single else (n, 3)
-    if a.shape != want:
-        raise ValueError(f"action must have shape {want}, got {a.shape}")
-    if a.dtype.kind not in "biuf":
-        raise ValueError(f"action must be numeric, got dtype {a.dtype}")
-    a = np.asarray(a, dtype=np.float64).reshape(n, 3)
-    code = check_action(a, mode == "relay", MAX_CURRENT_A)
-    if code == 1:
-        raise ValueError(f"action must be finite, got {a[~np.isfinite(a)][:3]}")
-    if code == 2:
-        raise ValueError(f"relay action must be 0 or 1 per muscle, got "
-                         f"{a[~np.isin(a, (0.0, 1.0))][:3]}")
-    if code == 3:
-        raise ValueError(f"current action must lie in [0, {MAX_CURRENT_A}] A, got "
-                         f"min {a.min():.4g}, max {a.max():.4g}")
-    return a
 
 
 # Per-env auxiliary columns (besides the plant state): host-side bookkeeping and sensors.
@@ -182,11 +113,11 @@ N_AUX = 24
 def _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget, a_sig,
           g_sig, T_sig, physics, first, start, stop):
     """Advance (if ``physics``) and observe envs start..stop. One compiled pass per env."""
-    tip, dtip, rot = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
-    offset, unit, ext = np.empty((3, 3)), np.empty((3, 2, 3)), np.empty((3, 2))
-    forces, qf, fmus = np.empty((3, 2)), np.empty(3), np.empty((3, 3))
-    amps, temps, applied = np.empty(3), np.empty(3), np.empty(3)
-    v, w, r = np.empty(3), np.empty(3), np.empty(6)
+    scratch = rig_scratch()
+    # the IMU's kinematics scratch is the plant's (both recompute it before use)
+    sense = (scratch[0], scratch[1], scratch[2], np.empty(3), np.empty(3), np.empty(6))
+    applied, meas = np.empty(3), np.empty(5)
+    a_noise, g_noise = np.empty(3), np.empty(2)
     shared = consts.shape[0] == 1
     for i in range(start, stop):
         c = consts[0] if shared else consts[i]
@@ -204,27 +135,21 @@ def _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, bud
                     applied[k] = cur[i, k]
             for k in range(3):
                 a[A_QPREV + k] = xi_row[L.S_Q + k]
-            a[A_LEFT] = _advance_rig(c, xi_row, applied, dt, 1, a[A_LEFT], out[i], tip, dtip,
-                                     rot, offset, unit, ext, forces, qf, fmus, amps, temps)
+            a[A_LEFT] = advance_rig(c, xi_row, applied, dt, 1, a[A_LEFT], out[i], scratch)
             a[A_USED] += out[i, L.O_ENERGY] + out[i, L.O_ENERGY + 1] + out[i, L.O_ENERGY + 2]
             a[A_TIDX] = tix + 1
             a[A_TS] = (tix + 1) * dt
         # Sensors: IMU (bias, noise, growing gyro bias) -> rig tilt pipeline; thermistors.
-        q = xi_row[L.S_Q:L.S_Q + 3]
-        imu_reading(q, a[A_QPREV:A_QPREV + 3], dt, mount[i], tip, dtip, rot, v, w, r)
-        n0, n1, n2 = next_normal(rng, i), next_normal(rng, i), next_normal(rng, i)
-        n3, n4 = next_normal(rng, i), next_normal(rng, i)
+        for k in range(3):
+            a_noise[k] = a_sig * next_normal(rng, i)
+        for k in range(2):
+            g_noise[k] = g_sig * next_normal(rng, i)
         n5, n6, n7 = next_normal(rng, i), next_normal(rng, i), next_normal(rng, i)
-        drift = a[A_DRIFT] * a[A_TS]
-        ax = r[0] + a[A_ABIAS] + a_sig * n0
-        ay = r[1] + a[A_ABIAS + 1] + a_sig * n1
-        az = r[2] + a[A_ABIAS + 2] + a_sig * n2
-        gx = r[3] + a[A_GBIAS] + drift + g_sig * n3
-        gy = r[4] + a[A_GBIAS + 1] + drift + g_sig * n4
-        if first:
-            fx_, fy_ = tilt_from_accel(ax, ay, az)
-        else:
-            fx_, fy_ = fuse_tilt(a[A_FILT], a[A_FILT + 1], ax, ay, az, gx, gy, dt, FILTER_TAU_S)
+        q = xi_row[L.S_Q:L.S_Q + 3]
+        imu_measurement(q, a[A_QPREV:A_QPREV + 3], dt, mount[i], a[A_ABIAS:A_ABIAS + 3],
+                        a[A_GBIAS:A_GBIAS + 3], a[A_DRIFT] * a[A_TS], a_noise, g_noise, sense,
+                        meas)
+        fx_, fy_ = imu_tilt_update(a[A_FILT], a[A_FILT + 1], meas, dt, first)
         a[A_FILT], a[A_FILT + 1] = fx_, fy_
         tx, ty = target_at(a[A_TS], targets[i, :, 0], targets[i, :, 1], targets[i, :, 2:4],
                            int(a[A_NSEG]))
@@ -234,42 +159,25 @@ def _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, bud
         e = tracking_error_deg(math.degrees(q[0]), math.degrees(q[1]), tx, ty)
         a[A_ERR] = e
         a[A_REWARD] = -e
-        frac = a[A_LEFT] / budget if budget < np.inf else 1.0
         fill_observation(obs[i], fx_, fy_, xi_row[L.S_T] + T_sig * n5,
                          xi_row[L.S_T + 1] + T_sig * n6, xi_row[L.S_T + 2] + T_sig * n7,
-                         tx, ty, frac)
+                         tx, ty, budget_fraction_left(a[A_LEFT], budget))
 
 
 @jit(parallel=True)
 def _rows_parallel(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget,
                    a_sig, g_sig, T_sig, physics, first):
     n = x.shape[0]
-    chunks = (n + 63) // 64
+    chunks = (n + PARALLEL_CHUNK - 1) // PARALLEL_CHUNK
     for ch in prange(chunks):
         _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget, a_sig,
-              g_sig, T_sig, physics, first, ch * 64, min(n, (ch + 1) * 64))
-
-
-@jit
-def check_action(a, relay, max_current):
-    """0 if the (N, 3) float64 action is valid, else 1 non-finite, 2 not 0/1, 3 out of range."""
-    for i in range(a.shape[0]):
-        for k in range(3):
-            v = a[i, k]
-            if not math.isfinite(v):
-                return 1
-            if relay:
-                if v != 0.0 and v != 1.0:
-                    return 2
-            elif v < 0.0 or v > max_current:
-                return 3
-    return 0
+              g_sig, T_sig, physics, first, ch * PARALLEL_CHUNK, min(n, (ch + 1) * PARALLEL_CHUNK))
 
 
 class NeckTrackCore:
     """N simulated rigs on the tracking task. Not an env itself; the envs wrap it."""
 
-    def __init__(self, num_envs: int, task: TaskConfig, params: NeckParams,
+    def __init__(self, num_envs: int, task: Task, params: NeckParams,
                  sensors: SensorParams, randomize: bool | Randomization, effects):
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
@@ -284,7 +192,7 @@ class NeckTrackCore:
         self.fixed_effects, self.sampled_effects = resolve_effects(effects)
         self.base_consts = constants_from_params(params)
         self.base_consts[:, L.CUTOFF_C] = task.cutoff_C
-        m = task.targets.max_segments(task.episode_s)
+        m = task.max_target_segments()
         self.consts = np.repeat(self.base_consts, n, axis=0)
         self.x = initial_state(self.base_consts, n)
         self.aux = np.zeros((n, N_AUX))
@@ -297,6 +205,7 @@ class NeckTrackCore:
         self.episode_effects: list[dict[str, dict[str, float]]] = [{} for _ in range(n)]
         self.generators = [np.random.default_rng() for _ in range(n)]
         self._budget = float(task.energy_budget_J)
+        self._episode_steps = task.episode_steps
         self._parallel = n >= PARALLEL_FROM
         # Every env on the same plant: let the kernel share one constants row (less memory
         # traffic at large N). Randomization or plant effects give each env its own row.
@@ -306,7 +215,7 @@ class NeckTrackCore:
     # -- reset ------------------------------------------------------------------------------
     def reset(self, ids: np.ndarray, seeds: Sequence[int | None] | None) -> None:
         """Start a new episode in envs ``ids``; ``seeds`` (same length) reseed their generators."""
-        spec, base, s = self.task.targets, self.base_consts[0], self.sensors
+        base, s = self.base_consts[0], self.sensors
         for k, i in enumerate(ids):
             if seeds is not None and seeds[k] is not None:
                 self.generators[i] = np.random.default_rng(seeds[k])
@@ -321,7 +230,7 @@ class NeckTrackCore:
             self.consts[i] = fx.apply_to_constants(row[None], eff)[0]
             refresh_derived(self.consts[i:i + 1])
             self.mount[i] = fx.imu_mount(eff)
-            t0, ramp, way, nseg = sample_targets(spec, self.task.episode_s, g, self.targets.shape[1])
+            t0, ramp, way, nseg = self.task.sample_targets(g, self.targets.shape[1])
             self.targets[i, :, 0], self.targets[i, :, 1], self.targets[i, :, 2:4] = t0, ramp, way
             a = self.aux[i]
             a[:] = 0.0
@@ -367,7 +276,7 @@ class NeckTrackCore:
     # -- reporting --------------------------------------------------------------------------
     @property
     def truncated(self) -> np.ndarray:
-        return self.aux[:, A_TIDX] >= self.task.episode_steps
+        return self.aux[:, A_TIDX] >= self._episode_steps
 
     @property
     def reward(self) -> np.ndarray:
@@ -388,3 +297,51 @@ class NeckTrackCore:
     @property
     def energy_left(self) -> np.ndarray:
         return self.aux[:, A_LEFT]
+
+    # -- named views (the info of the envs) ------------------------------------------------
+    @property
+    def theta_deg(self) -> np.ndarray:
+        return self.out[:, L.O_THETA]
+
+    @property
+    def phi_deg(self) -> np.ndarray:
+        return self.out[:, L.O_PHI]
+
+    @property
+    def temperatures_C(self) -> np.ndarray:
+        return self.x[:, L.S_T:L.S_T + 3]
+
+    @property
+    def currents_A(self) -> np.ndarray:
+        return self.out[:, L.O_CURRENT:L.O_CURRENT + 3]
+
+    @property
+    def target_theta_deg(self) -> np.ndarray:
+        return self.aux[:, A_TTHETA]
+
+    @property
+    def target_phi_deg(self) -> np.ndarray:
+        return self.aux[:, A_TPHI]
+
+    def info(self, i: int | None = None) -> dict[str, Any]:
+        """The step ``info`` of env ``i`` (Python scalars, fresh arrays) or of all envs (fresh
+        arrays: nothing a caller keeps aliases the core's buffers)."""
+        if i is None:
+            return step_info(theta_deg=self.theta_deg.copy(), phi_deg=self.phi_deg.copy(),
+                             temperatures_C=self.temperatures_C.copy(),
+                             energy_J=self.energy_used.copy(), currents_A=self.currents_A.copy(),
+                             tracking_error_deg=self.err.copy(),
+                             target_theta_deg=self.target_theta_deg.copy(),
+                             target_phi_deg=self.target_phi_deg.copy(),
+                             energy_left_J=self.energy_left.copy())
+        # one env (the single env's every step): two row conversions instead of nine lookups
+        out, a = self.out[i].tolist(), self.aux[i].tolist()
+        return step_info(theta_deg=out[L.O_THETA], phi_deg=out[L.O_PHI],
+                         temperatures_C=self.x[i, L.S_T:L.S_T + 3].copy(), energy_J=a[A_USED],
+                         currents_A=self.out[i, L.O_CURRENT:L.O_CURRENT + 3].copy(),
+                         tracking_error_deg=a[A_ERR], target_theta_deg=a[A_TTHETA],
+                         target_phi_deg=a[A_TPHI], energy_left_J=a[A_LEFT])
+
+    def episode_over(self, i: int) -> bool:
+        """Env ``i`` has run ``episode_s`` (it is truncated)."""
+        return self.aux[i, A_TIDX] >= self._episode_steps

@@ -10,14 +10,10 @@ from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.vector_env import AutoresetMode
 
-from ..observation import observation_space
-from ..params import NeckParams
-from ..physics import layout as L
+from ..params import NeckParams, resolve_params
 from ..sensors import SensorParams
-from ..targets import TargetSpec
-from .core import (A_ERR, A_LEFT, A_TIDX, A_TPHI, A_TTHETA, A_USED, DEFAULT_BUDGET_J,
-                   DEFAULT_CUTOFF_C, DEFAULT_DT_S, DEFAULT_EPISODE_S, DEFAULT_SUPPLY_A, MAX_CURRENT_A, NeckTrackCore,
-                   Randomization, TaskConfig, resolve_params, validate_action)
+from ..task import Task
+from .core import NeckTrackCore, Randomization
 
 _DOC = """
     ## Description
@@ -38,8 +34,9 @@ _DOC = """
     | `"current"` (default) | `Box(0, 8, (3,), float32)`       | current through muscle 1-3, A             |
     | `"relay"`         | `MultiBinary(3)`                     | relay k on: `supply_current_A` flows      |
 
-    Both drive the same plant. NaN/inf, a wrong shape, currents outside [0, 8] A or relay values
-    other than 0/1 raise `ValueError` (nothing is clipped).
+    Both drive the same plant. Currents outside [0, 8] A are clipped to it (as Gymnasium's
+    Box-action envs do); NaN/inf, a wrong shape, a non-numeric dtype or relay values other than
+    0/1 raise `ValueError` (`neck_env.task.Task.currents_A`).
 
     ## Observation space
 
@@ -84,36 +81,35 @@ _DOC = """
 
     ## Info
 
-    `theta_deg`, `phi_deg` (true pose), `temperatures_C` (3,), `energy_J` (cumulative electrical
+    (`neck_env.task.INFO_KEYS`, the same keys on the rig.) `theta_deg`, `phi_deg` (true pose), `temperatures_C` (3,), `energy_J` (cumulative electrical
     energy this episode), `currents_A` (3,) (what flowed, after budget and supply limits),
     `tracking_error_deg`, `target_theta_deg`, `target_phi_deg`, `energy_left_J`,
     `budget_exhausted`.
 
     ## Arguments
 
+    The task (`neck_env.task.Task`, its fields as keywords, or `task=Task(...)`):
     `action_mode`, `dt` (control period, 0.05 s), `episode_s` (60), `energy_budget_J` (1500;
-    `float("inf")` for none), `supply_current_A` (7 A), `cutoff_C` (160), `params`
-    (`NeckParams` or JSON path;
-    default: the calibrated defaults), `sensors` (`SensorParams`), `targets` (`TargetSpec`),
-    `randomize`, `effects`, `render_mode` (`"rgb_array"` or `"human"`).
+    `float("inf")` for none), `supply_current_A` (7 A), `cutoff_C` (160), `targets`
+    (`TargetSpec` or its fields as a dict). The simulation: `params` (`NeckParams` or JSON
+    path; default: the calibrated defaults), `sensors` (`SensorParams`), `randomize`,
+    `effects`, and `render_mode` (`"rgb_array"`; `"human"` on the single env: a window,
+    `render()` returns None).
 """
 
 
-def _build(num_envs, action_mode, dt, episode_s, energy_budget_J, supply_current_A, cutoff_C,
-           params, sensors, targets, randomize, effects) -> NeckTrackCore:
-    task = TaskConfig(action_mode=action_mode, dt=dt, episode_s=episode_s,
-                      energy_budget_J=energy_budget_J, supply_current_A=supply_current_A,
-                      cutoff_C=cutoff_C, targets=targets if targets is not None else TargetSpec())
+def _build(num_envs, task, task_kwargs, params, sensors, randomize, effects) -> NeckTrackCore:
+    if task is None:
+        task = Task.from_kwargs(task_kwargs)
+    elif task_kwargs:
+        raise TypeError(f"give the task either as task=Task(...) or as keywords, not both "
+                        f"(got task and {sorted(task_kwargs)})")
+    elif not isinstance(task, Task):
+        raise ValueError(f"task must be a neck_env.task.Task, got {type(task).__name__}")
     if sensors is not None and not isinstance(sensors, SensorParams):
         raise ValueError(f"sensors must be a SensorParams, got {type(sensors).__name__}")
     return NeckTrackCore(num_envs, task, resolve_params(params), sensors or SensorParams(),
                          randomize, effects)
-
-
-def _action_space(mode: str) -> spaces.Space:
-    if mode == "relay":
-        return spaces.MultiBinary(3)
-    return spaces.Box(0.0, MAX_CURRENT_A, (3,), dtype=np.float32)
 
 
 class NeckTrackEnv(gym.Env):
@@ -121,23 +117,17 @@ class NeckTrackEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 20}
 
-    def __init__(self, action_mode: str = "current", dt: float = DEFAULT_DT_S,
-                 episode_s: float = DEFAULT_EPISODE_S, energy_budget_J: float = DEFAULT_BUDGET_J,
-                 supply_current_A: float = DEFAULT_SUPPLY_A, cutoff_C: float = DEFAULT_CUTOFF_C,
-                 params: NeckParams | str | None = None, sensors: SensorParams | None = None,
-                 targets: TargetSpec | None = None, randomize: bool | Randomization = False,
-                 effects=None, render_mode: str | None = None):
-        self.core = _build(1, action_mode, dt, episode_s, energy_budget_J, supply_current_A,
-                           cutoff_C, params, sensors, targets, randomize, effects)
+    def __init__(self, *, task: Task | None = None, params: NeckParams | str | None = None,
+                 sensors: SensorParams | None = None, randomize: bool | Randomization = False,
+                 effects=None, render_mode: str | None = None, **task_kwargs: Any):
+        self.core = _build(1, task, task_kwargs, params, sensors, randomize, effects)
         self.task = self.core.task
         self.dt = self.task.dt
-        self.action_space = _action_space(action_mode)
-        self.observation_space = observation_space()
+        self.action_space = self.task.action_space
+        self.observation_space = self.task.observation_space
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
         self.render_mode = render_mode
-        self._scale = self.task.supply_current_A if action_mode == "relay" else 1.0
-        self._steps = self.task.episode_steps
         self._renderer = None
         self._started = False
 
@@ -155,31 +145,15 @@ class NeckTrackEnv(gym.Env):
     def step(self, action):
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        cur = validate_action(action, self.task.action_mode, 1, single=True)
-        self.core.step(cur * self._scale if self._scale != 1.0 else cur)
+        self.core.step(self.task.currents_A(action))
         if self.render_mode == "human":
             self.render()
         info = self._info()
-        truncated = self.core.aux[0, A_TIDX] >= self._steps
-        return self.core.obs[0].copy(), -info["tracking_error_deg"], False, bool(truncated), info
+        truncated = bool(self.core.episode_over(0))
+        return self.core.obs[0].copy(), -info["tracking_error_deg"], False, truncated, info
 
     def _info(self) -> dict[str, Any]:
-        c = self.core
-        theta, phi = c.out[0, L.O_THETA:L.O_PHI + 1].tolist()
-        a = c.aux[0].tolist()
-        left = a[A_LEFT]
-        return {
-            "theta_deg": theta,
-            "phi_deg": phi,
-            "temperatures_C": c.x[0, L.S_T:L.S_T + 3].copy(),
-            "energy_J": a[A_USED],
-            "currents_A": c.out[0, L.O_CURRENT:L.O_CURRENT + 3].copy(),
-            "tracking_error_deg": a[A_ERR],
-            "target_theta_deg": a[A_TTHETA],
-            "target_phi_deg": a[A_TPHI],
-            "energy_left_J": left,
-            "budget_exhausted": left <= 0.0,
-        }
+        return self.core.info(0)
 
     def render(self):
         if self.render_mode is None:
@@ -189,7 +163,9 @@ class NeckTrackEnv(gym.Env):
 
         if self._renderer is None:
             self._renderer = NeckRenderer(self.core.params, human=self.render_mode == "human")
-        return self._renderer.draw(self.core, 0)
+        frame = self._renderer.draw(self.core, 0)
+        # Gymnasium's contract: "human" shows the frame and returns None
+        return None if self.render_mode == "human" else frame
 
     def close(self):
         if self._renderer is not None:
@@ -205,27 +181,22 @@ class NeckTrackVectorEnv(VectorEnv):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20,
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, num_envs: int = 1, action_mode: str = "current", dt: float = DEFAULT_DT_S,
-                 episode_s: float = DEFAULT_EPISODE_S, energy_budget_J: float = DEFAULT_BUDGET_J,
-                 supply_current_A: float = DEFAULT_SUPPLY_A, cutoff_C: float = DEFAULT_CUTOFF_C,
-                 params: NeckParams | str | None = None,
-                 sensors: SensorParams | None = None, targets: TargetSpec | None = None,
+    def __init__(self, num_envs: int = 1, *, task: Task | None = None,
+                 params: NeckParams | str | None = None, sensors: SensorParams | None = None,
                  randomize: bool | Randomization = False, effects=None,
-                 render_mode: str | None = None):
-        self.core = _build(num_envs, action_mode, dt, episode_s, energy_budget_J,
-                           supply_current_A, cutoff_C, params, sensors, targets, randomize, effects)
+                 render_mode: str | None = None, **task_kwargs: Any):
+        self.core = _build(num_envs, task, task_kwargs, params, sensors, randomize, effects)
         self.task = self.core.task
         self.num_envs = self.core.n
         self.dt = self.task.dt
-        self.single_action_space = _action_space(action_mode)
-        self.single_observation_space = observation_space()
+        self.single_action_space = self.task.action_space
+        self.single_observation_space = self.task.observation_space
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space,
                                                               self.num_envs)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
         self.render_mode = render_mode
-        self._scale = self.task.supply_current_A if action_mode == "relay" else 1.0
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._all = np.ones(self.num_envs, dtype=bool)
         self._no_term = np.zeros(self.num_envs, dtype=bool)
@@ -260,8 +231,7 @@ class NeckTrackVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        cur = validate_action(actions, self.task.action_mode, self.num_envs, single=False) * self._scale
-        self.core.step(cur)
+        self.core.step(self.task.currents_A(actions, self.num_envs))
         truncated = self.core.truncated.copy()
         rewards = self.core.reward.copy()
         if self._autoreset.any():
@@ -273,30 +243,7 @@ class NeckTrackVectorEnv(VectorEnv):
         return self.core.obs.copy(), rewards, self._no_term.copy(), truncated, self._info()
 
     def _info(self) -> dict[str, Any]:
-        c = self.core
-        # One fresh array holds every value; the info entries are views into it, so nothing a
-        # caller keeps aliases the env's buffers.
-        rep = np.empty((self.num_envs, 14))
-        rep[:, 0:2] = c.out[:, L.O_THETA:L.O_PHI + 1]
-        rep[:, 2:5] = c.x[:, L.S_T:L.S_T + 3]
-        rep[:, 5] = c.aux[:, A_USED]
-        rep[:, 6:9] = c.out[:, L.O_CURRENT:L.O_CURRENT + 3]
-        rep[:, 9] = c.aux[:, A_ERR]
-        rep[:, 10:12] = c.aux[:, A_TTHETA:A_TPHI + 1]
-        rep[:, 12] = c.aux[:, A_LEFT]
-        left = rep[:, 12]
-        info = {
-            "theta_deg": rep[:, 0],
-            "phi_deg": rep[:, 1],
-            "temperatures_C": rep[:, 2:5],
-            "energy_J": rep[:, 5],
-            "currents_A": rep[:, 6:9],
-            "tracking_error_deg": rep[:, 9],
-            "target_theta_deg": rep[:, 10],
-            "target_phi_deg": rep[:, 11],
-            "energy_left_J": left,
-            "budget_exhausted": left <= 0.0,
-        }
+        info = self.core.info()
         for k in list(info):
             info["_" + k] = self._all
         return info

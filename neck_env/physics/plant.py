@@ -49,10 +49,12 @@ from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_GAIN, CONV_TCOEF, C
 from .muscles import anchor_geometry, generalized_forces, spring_geometry
 from .sma import phase_thermal_step, resistance, spring_force, spring_rate
 
-DEFAULT_DT_S = 0.01  # physics step for experiments; see tests/test_physics.py
+# Physics step for experiments and calibration (the envs step at their control period,
+# neck_env.task.CONTROL_DT_S); convergence in tests/test_physics.py.
+EXPERIMENT_DT_S = 0.01
 SPRINGS_PER_MUSCLE = 2
 PARALLEL_FROM = 512  # rigs; below this the thread start-up costs more than it saves
-_CHUNK = 64
+PARALLEL_CHUNK = 64  # rigs per parallel work item (a loop over rigs in prange splits into these)
 
 
 def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarray:
@@ -129,9 +131,41 @@ def initial_state(consts: np.ndarray, n_rigs: int | None = None) -> np.ndarray:
 
 
 @jit
-def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit, ext, forces,
-                 qf, fmus, amps, temps):
-    """Advance one rig by n_sub substeps of dt; returns the energy budget left (J)."""
+def rig_scratch():
+    """Scratch arrays of one ``advance_rig`` call: kinematics (tip (3,), its Jacobian (3, 3),
+    head rotation (3, 3)), spring geometry (offsets, unit vectors, extensions), forces,
+    generalized forces, muscle moments, currents and temperatures."""
+    return (np.empty(3), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)),
+            np.empty((3, 2, 3)), np.empty((3, 2)), np.empty((3, 2)), np.empty(3),
+            np.empty((3, 3)), np.empty(3), np.empty(3))
+
+
+@jit
+def over_temperature(temperature_C, cutoff_C):
+    """The over-temperature rule: a muscle whose spring is at or above ``cutoff_C`` gets no
+    current (as the rig firmware does with thermistors). Used by the plant and, through
+    ``neck_env.task.Task``, by the rig env."""
+    return temperature_C >= cutoff_C
+
+
+@jit
+def budget_energy_scale(energy_J, left_J):
+    """The energy-budget rule: the factor on a step's planned electrical energy that keeps it
+    within what is left -- 1 if it fits, else ``left / planned`` (0 once the budget is spent),
+    so the budget is met exactly and never overdrawn. Currents scale by its square root."""
+    if energy_J <= left_J:
+        return 1.0
+    return left_J / energy_J if energy_J > 0.0 else 0.0
+
+
+@jit
+def advance_rig(c, x, cur, dt, n_sub, budget, out, scratch):
+    """Advance one rig (constants row ``c``, state row ``x``) by ``n_sub`` substeps of ``dt``
+    with commanded currents ``cur`` (3,); fill its output row ``out``; return the energy budget
+    left (J). ``scratch`` comes from ``rig_scratch()``: a caller looping over rigs allocates it
+    once. This is the plant's one per-rig step: ``step_inplace`` and the env core both call it.
+    """
+    tip, dtip, rot, offset, unit, ext, forces, qf, fmus, amps, temps = scratch
     for k in range(3):
         out[O_ENERGY + k] = 0.0
         out[O_CURRENT + k] = 0.0
@@ -145,14 +179,15 @@ def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit
         e_sub = 0.0
         for k in range(3):
             r = resistance(c, x[S_XI + k])
-            a = abs(cur[k]) if x[S_T + k] < c[CUTOFF_C] else 0.0
+            a = 0.0 if over_temperature(x[S_T + k], c[CUTOFF_C]) else abs(cur[k])
             if c[SUPPLY_V] < np.inf:
                 a = min(a, c[SUPPLY_V] / (SPRINGS_PER_MUSCLE * r + c[WIRING_R]))
             amps[k] = a
             e_sub += SPRINGS_PER_MUSCLE * a * a * r * dt
             temps[k] = x[S_T + k]
         if e_sub > budget:
-            s = math.sqrt(budget / e_sub) if e_sub > 0.0 else 0.0
+            # Joule energy goes with I^2: the energy factor's root scales the currents.
+            s = math.sqrt(budget_energy_scale(e_sub, budget))
             for k in range(3):
                 amps[k] *= s
         budget = max(budget - min(e_sub, budget), 0.0)
@@ -226,15 +261,11 @@ def _advance_rig(c, x, cur, dt, n_sub, budget, out, tip, dtip, rot, offset, unit
 
 @jit
 def _advance_range(consts, state, cur, dt, n_sub, budget, out, start, stop):
-    tip, dtip, rot = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
-    offset, unit, ext = np.empty((3, 3)), np.empty((3, 2, 3)), np.empty((3, 2))
-    forces, qf, fmus = np.empty((3, 2)), np.empty(3), np.empty((3, 3))
-    amps, temps = np.empty(3), np.empty(3)
+    scratch = rig_scratch()
     shared = consts.shape[0] == 1
     for i in range(start, stop):
         c = consts[0] if shared else consts[i]
-        budget[i] = _advance_rig(c, state[i], cur[i], dt, n_sub, budget[i], out[i], tip, dtip,
-                                 rot, offset, unit, ext, forces, qf, fmus, amps, temps)
+        budget[i] = advance_rig(c, state[i], cur[i], dt, n_sub, budget[i], out[i], scratch)
 
 
 @jit
@@ -245,9 +276,10 @@ def _step_serial(consts, state, cur, dt, n_sub, budget, out):
 @jit(parallel=True)
 def _step_parallel(consts, state, cur, dt, n_sub, budget, out):
     n = state.shape[0]
-    n_chunks = (n + _CHUNK - 1) // _CHUNK
+    n_chunks = (n + PARALLEL_CHUNK - 1) // PARALLEL_CHUNK
     for ch in prange(n_chunks):
-        _advance_range(consts, state, cur, dt, n_sub, budget, out, ch * _CHUNK, min(n, (ch + 1) * _CHUNK))
+        _advance_range(consts, state, cur, dt, n_sub, budget, out, ch * PARALLEL_CHUNK,
+                       min(n, (ch + 1) * PARALLEL_CHUNK))
 
 
 def step_inplace(consts: np.ndarray, state: np.ndarray, currents_A: np.ndarray, dt_s: float,
@@ -305,7 +337,7 @@ class Trajectory(NamedTuple):
     q: np.ndarray  # (S, N, 3)
 
 
-def simulate(consts: np.ndarray, currents_A: np.ndarray, dt_s: float = DEFAULT_DT_S,
+def simulate(consts: np.ndarray, currents_A: np.ndarray, dt_s: float = EXPERIMENT_DT_S,
              state: np.ndarray | None = None) -> tuple[Trajectory, np.ndarray]:
     """Run currents (S, N, 3), one row per step of ``dt_s``; returns the trajectory after each
     step (t = dt, 2 dt, ...) and the final state."""
@@ -340,7 +372,7 @@ def simulate(consts: np.ndarray, currents_A: np.ndarray, dt_s: float = DEFAULT_D
 
 
 def pulse_currents(current_A: Sequence[float] | np.ndarray, muscle: int, on_s: float,
-                   total_s: float, dt_s: float = DEFAULT_DT_S) -> np.ndarray:
+                   total_s: float, dt_s: float = EXPERIMENT_DT_S) -> np.ndarray:
     """Currents (S, N, 3) for the paper's step experiment: muscle ``muscle`` (0-based) driven at
     ``current_A[n]`` for ``on_s`` seconds from t = 0, then off until ``total_s``."""
     amps = np.atleast_1d(np.asarray(current_A, float))

@@ -1,4 +1,4 @@
-"""The real rig: the host side of the Arduino UNO firmware, and its simavr HIL harness.
+"""The real rig: the host side of the Arduino UNO firmware, and its emulator.
 
 * :mod:`neck_env.rig.protocol` -- frames, CRC, messages, streaming decoder (pure, no I/O);
 * :mod:`neck_env.rig.link` -- the serial link (pyserial ports and URLs, replies by SEQ,
@@ -13,6 +13,10 @@
   :mod:`neck_env.rig.simavr` runs the real firmware build under simavr with a fake MPU6050,
   thermistor inputs and relay pins; :mod:`neck_env.rig.sim_neck` -- the simulator playing the
   neck in that loop, with catalogue effects (``EmulatedRig``: both, on a pty).
+
+``HardwareNeckEnv`` applies the task's rules through ``neck_env.task.Task`` (the simulated
+envs' task object); ``run`` finds controllers and policies through ``neck_env.agent`` (the
+``neck_env.agents`` entry points), never by importing them.
 
 Submodules are imported on demand so that importing the package stays free of
 side effects (no subprocesses, no serial ports).

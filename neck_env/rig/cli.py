@@ -3,7 +3,9 @@
 Subcommands (``--help`` on each explains every flag):
 
 * ``run``   -- episodes of NeckTrack on the rig with a shipped policy (``--policy``) or a
-  heuristic controller (``--controller``), recorded to ``--record DIR``;
+  heuristic controller (``--controller``), recorded to ``--record DIR``; both come from the
+  packages registered under the entry-point group ``neck_env.agents`` (``neck_env.agent``:
+  this project's ``agents``; ``--policy`` needs the ``[train]`` extra);
 * ``pulse`` -- the paper's step experiment: one muscle at the supply current for some seconds,
   then cooling, recorded;
 * ``protocol`` -- the recording protocol the diagnosis (``neck-gap``) expects, as one resumable
@@ -24,21 +26,17 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-from ..envs.core import (DEFAULT_BUDGET_J, DEFAULT_CUTOFF_C, DEFAULT_DT_S, DEFAULT_SUPPLY_A,
-                         MAX_CURRENT_A)
+from ..task import CONTROL_DT_S, DEFAULT_BUDGET_J, DEFAULT_CUTOFF_C, DEFAULT_SUPPLY_A, MAX_CURRENT_A
 from ..observation import tilt_angles_deg, tilt_from_accel
 from . import protocol as P
 from .errors import RigError, fault_names
 from ..experiments import PROTOCOLS as PROTOCOL_NAMES
 
 __all__ = ["build_parser", "main"]
-
-Agent = tuple[Callable[[], None], Callable[[np.ndarray], np.ndarray], str]
-
 
 def _positive(kind: type, what: str):
     def parse(text: str):
@@ -106,8 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "open_loop_lead, bang_bang, pid, mpc")
     _add_rig_args(r)
     r.add_argument("--record", metavar="DIR", default=None,
-                   help="folder for the recordings (design.md 2.2) and meta.json; read it back "
-                        "with neck-gap DIR (default: no recording)")
+                   help="folder for the recordings and meta.json (format: "
+                        "docs/recording-format.md); read it back with neck-gap DIR (default: "
+                        "no recording)")
     r.add_argument("--episodes", type=_positive(int, "--episodes"), default=1,
                    help="number of episodes (default 1)")
     r.add_argument("--episode-s", type=_positive(float, "--episode-s"), default=60.0,
@@ -146,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cooling recorded after the pulse, s (default 25)")
     _add_rig_args(q)
     q.add_argument("--record", metavar="DIR", default=None,
-                   help="folder for the recording (design.md 2.2)")
+                   help="folder for the recording (format: docs/recording-format.md)")
 
     s = sub.add_parser(
         "protocol", help="record the diagnosis's protocol (for neck-gap) as a resumable session",
@@ -211,25 +210,6 @@ def build_parser() -> argparse.ArgumentParser:
 # ---------------------------------------------------------------------------------------------
 
 
-def _agent(args: argparse.Namespace, env_kwargs: dict[str, Any], pol=None) -> Agent:
-    """(reset, act, label) for the policy (already loaded) or controller on the command line."""
-    if pol is not None:
-        relay = env_kwargs["action_mode"] == "relay"
-
-        def act(obs: np.ndarray) -> np.ndarray:
-            a = np.asarray(pol.act(obs))
-            # the same mapping as the benchmark's policy agent
-            return (a > 0.5).astype(np.int8) if relay else np.clip(a, 0.0, MAX_CURRENT_A).astype(np.float32)
-
-        return pol.reset, act, Path(args.policy).stem
-    from agents.controllers import CONTROLLERS, make_controller
-
-    if args.controller not in CONTROLLERS:
-        raise ValueError(f"unknown controller {args.controller!r}; known: {sorted(CONTROLLERS)}")
-    ctrl = make_controller(args.controller, env_kwargs)
-    return ctrl.reset, ctrl.act, args.controller
-
-
 def _open_link(port: str):
     from .link import RigLink
 
@@ -237,13 +217,10 @@ def _open_link(port: str):
 
 
 def cmd_run(args: argparse.Namespace, out=print) -> int:
+    from .. import agent as agents  # controllers and policies: the neck_env.agents entry points
     from .hardware_env import HardwareNeckEnv
 
-    pol = None
-    if args.policy:
-        from agents.policy import DeployedPolicy
-
-        pol = DeployedPolicy.load(args.policy)  # reads the zip and its JSON once
+    pol = agents.load_policy(args.policy) if args.policy else None
     trained = pol.env_kwargs if pol is not None else {}
     if args.policy and args.action_mode is not None and args.action_mode != trained.get(
             "action_mode", "current"):
@@ -251,12 +228,13 @@ def cmd_run(args: argparse.Namespace, out=print) -> int:
                          f"{trained.get('action_mode', 'current')!r}")
     mode = trained.get("action_mode", args.action_mode or "current")
     supply = args.supply_current or float(trained.get("supply_current_A", DEFAULT_SUPPLY_A))
-    dt = float(trained.get("dt", DEFAULT_DT_S))
+    dt = float(trained.get("dt", CONTROL_DT_S))
     env_kwargs = {"action_mode": mode, "dt": dt, "episode_s": args.episode_s,
                   "energy_budget_J": args.budget, "supply_current_A": supply}
     if args.params:
         env_kwargs["params"] = args.params
-    reset_agent, act, label = _agent(args, env_kwargs, pol)
+    agent = pol if pol is not None else agents.make_controller(args.controller, env_kwargs)
+    reset_agent, act, label = agent.reset, agent.act, agent.label
     link = _open_link(args.port)
     env = HardwareNeckEnv(link=link, cutoff_C=args.cutoff, thermistors=args.thermistors,
                           ambient_C=args.ambient, record_dir=args.record,

@@ -18,17 +18,13 @@ from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
 from ..experiments import REST, RestCriterion
-from ..envs.core import (DEFAULT_BUDGET_J, DEFAULT_CUTOFF_C, DEFAULT_DT_S, DEFAULT_EPISODE_S,
-                         DEFAULT_SUPPLY_A, MAX_CURRENT_A, TaskConfig, resolve_params,
-                         validate_action)
-from ..observation import (FILTER_TAU_S, fill_observation, fuse_tilt, observation_space,
-                           tilt_angles_deg, tilt_from_accel)
-from ..params import NeckParams
+from ..observation import FILTER_TAU_S, fill_observation, fuse_tilt, tilt_angles_deg, tilt_from_accel
+from ..params import NeckParams, resolve_params
 from ..recording import RecordingWriter, write_meta
-from ..targets import TargetSpec, sample_targets, target_at, tracking_error_deg
+from ..targets import target_at, tracking_error_deg
+from ..task import Task, step_info
 from . import protocol as P
 from .errors import RigFirmwareReset, RigNotAtRest
 from .link import RigError, RigLink, RigLinkLost, RigRefused, RigTimeout
@@ -37,7 +33,7 @@ from .thermal_estimate import ThermalEstimate
 
 __all__ = ["HardwareNeckEnv", "RECORD_COLUMNS", "RestResult"]
 
-#: Columns of a rig recording: the contract of design.md 2.2 first, then what the rig adds.
+#: Columns of a rig recording: the required ones (docs/recording-format.md) first, then what the rig adds.
 RECORD_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg",
                   "T1_est", "T2_est", "T3_est", "ax", "ay", "az", "gx", "gy", "gz",
                   "relays", "faults", "target_theta_deg", "target_phi_deg", "t_mcu_ms")
@@ -74,6 +70,11 @@ def _warm_up_compiled(estimate: ThermalEstimate) -> None:
     fill_observation(np.empty(8, np.float32), 0.0, 0.0, 25.0, 25.0, 25.0, 0.0, 0.0, 1.0)
     target_at(0.0, np.zeros(1), np.zeros(1), np.zeros((1, 2)), 1)
     tracking_error_deg(0.0, 0.0, 0.0, 0.0)
+    task = Task()
+    task.currents_A(np.zeros(3))
+    task.cut_hot(np.zeros(3), np.zeros(3))
+    task.budget_energy_scale(1.0, 1.0)
+    task.budget_fraction_left(1.0)
     estimate.warm_up()
 
 
@@ -87,8 +88,9 @@ class HardwareNeckEnv(gym.Env):
     | `"current"` (default) | `Box(0, 8, (3,), float32)`, A | per-muscle duty `(I / I_s)^2` of the supply current `I_s` (time-proportional switching in the firmware, 1 s window): the same mean Joule heat as a steady `I`. The firmware caps duty at 80 %, so the largest steady-equivalent current is `0.89 I_s` |
     | `"relay"` | `MultiBinary(3)` | relay k on: `I_s` flows (firmware caps: 10 s continuous on-time, sustained-duty limiter) |
 
-    Invalid actions raise `ValueError` exactly as in simulation, after the relays are commanded
-    off.
+    Actions are checked, clipped and scaled by the same `neck_env.task.Task` as in simulation;
+    invalid ones (NaN/inf, wrong shape, relay values other than 0/1) raise `ValueError` after the
+    relays are commanded off.
 
     ## Observation space (as ``NeckTrack-v0``, built by ``neck_env.observation``)
 
@@ -135,16 +137,19 @@ class HardwareNeckEnv(gym.Env):
 
     ## Recording
 
-    With `record_dir`, every episode writes `rec_NN.csv` (design.md 2.2: `t`, commanded `i1..i3`
-    = `I_s` while the relay pin is on, `theta_deg`, `phi_deg`, `T1..T3` only from thermistors;
-    the estimate as `T1_est..`, raw IMU, relays, faults, target) at the telemetry rate, flushed
-    at least once a second, and `meta.json`; `neck_env.gap` reads the folder as it is.
+    With `record_dir`, every episode writes `rec_NN.csv` (format: docs/recording-format.md;
+    `t`, commanded `i1..i3` = `I_s` while the relay pin is on, `theta_deg`, `phi_deg`, `T1..T3`
+    only from thermistors; the estimate as `T1_est..`, raw IMU, relays, faults, target) at the
+    telemetry rate, flushed at least every 0.5 s, and `meta.json`; `neck_env.gap` reads the
+    folder as it is.
 
     ## Arguments
 
-    `port` (device path or pyserial URL) or `link` (an open ``RigLink``); the task arguments of
-    ``NeckTrack-v0`` (`action_mode`, `dt`, `episode_s`, `energy_budget_J`, `supply_current_A`
-    -- **set the supply to this current** --, `cutoff_C`, `params`, `targets`); `thermistors`
+    `port` (device path or pyserial URL) or `link` (an open ``RigLink``); the task of
+    ``NeckTrack-v0`` (``neck_env.task.Task``, as `task=` or its fields as keywords:
+    `action_mode`, `dt`, `episode_s`, `energy_budget_J`, `supply_current_A` -- **set the supply
+    to this current** --, `cutoff_C`, `targets`); `params` (the model for the thermal estimate
+    and the energy accounting); `thermistors`
     (mask of fitted thermistors, bit k = muscle k; default none), `stream_hz` (100),
     `ambient_C` (for the estimate; default: the parameters'), `cooldown_s` (300),
     `cooldown_margin_C` (3), `record_dir`, `remember` (carry the thermal estimate across
@@ -155,19 +160,20 @@ class HardwareNeckEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, port: str | None = None, *, link: RigLink | None = None,
-                 action_mode: str = "current", dt: float = DEFAULT_DT_S,
-                 episode_s: float = DEFAULT_EPISODE_S, energy_budget_J: float = DEFAULT_BUDGET_J,
-                 supply_current_A: float = DEFAULT_SUPPLY_A, cutoff_C: float = DEFAULT_CUTOFF_C,
-                 params: NeckParams | str | None = None, targets: TargetSpec | None = None,
+                 task: Task | None = None, params: NeckParams | str | None = None,
                  thermistors: int = 0, stream_hz: int = 100, ambient_C: float | None = None,
                  cooldown_s: float = 300.0, cooldown_margin_C: float = 3.0,
                  record_dir: str | Path | None = None, open_timeout: float = 4.0,
-                 remember: bool = True, say: Callable[[str], None] | None = None) -> None:
+                 remember: bool = True, say: Callable[[str], None] | None = None,
+                 **task_kwargs: Any) -> None:
         if (port is None) == (link is None):
             raise ValueError("give exactly one of port (device path or pyserial URL) or link")
-        self.task = TaskConfig(action_mode=action_mode, dt=dt, episode_s=episode_s,
-                               energy_budget_J=energy_budget_J, supply_current_A=supply_current_A,
-                               cutoff_C=cutoff_C, targets=targets if targets is not None else TargetSpec())
+        if task is None:
+            task = Task.from_kwargs(task_kwargs)
+        elif task_kwargs:
+            raise TypeError(f"give the task either as task=Task(...) or as keywords, not both "
+                            f"(got task and {sorted(task_kwargs)})")
+        self.task = task
         if not (isinstance(thermistors, int) and 0 <= thermistors <= 7):
             raise ValueError(f"thermistors must be a bit mask 0..7 (bit k = muscle k), got {thermistors!r}")
         if not (isinstance(stream_hz, int) and 10 <= stream_hz <= 100):
@@ -180,9 +186,8 @@ class HardwareNeckEnv(gym.Env):
         self.params = resolve_params(params)
         self.dt = self.task.dt
         self.action_mode = self.task.action_mode
-        self.action_space = (spaces.MultiBinary(3) if self.action_mode == "relay"
-                             else spaces.Box(0.0, MAX_CURRENT_A, (3,), dtype=np.float32))
-        self.observation_space = observation_space()
+        self.action_space = self.task.action_space
+        self.observation_space = self.task.observation_space
         self.thermistor_mask = thermistors
         self.stream_hz = stream_hz
         self.cooldown_s = float(cooldown_s)
@@ -398,7 +403,7 @@ class HardwareNeckEnv(gym.Env):
         self._record_as = opts.get("record_as")
         try:
             self._close_recording()
-            if self.link._lost is not None:
+            if self.link.lost is not None:
                 # the port vanished in an earlier episode: reopen it (USB replugged) and check
                 # the firmware again; raises RigLinkLost if it is still gone
                 self.link.reconnect()
@@ -409,13 +414,10 @@ class HardwareNeckEnv(gym.Env):
             tm = self._wait_telemetry(self._samples, FIRST_SAMPLE_TIMEOUT_S)
             self._check_faults(tm)
             self._cool_down(opts.get("rest_tilt_deg"), bool(opts.get("require_rest", False)))
-            spec = self.task.targets
-            m = spec.max_segments(self.task.episode_s)
             # The simulated env's derivation (its np_random draws the core's seed, whose
             # Generator draws the targets): a seed gives the same targets as NeckTrack-v0.
             g = np.random.default_rng(int(self.np_random.integers(0, 2**63)))
-            self._t0s, self._ramps, self._ways, self._nseg = sample_targets(
-                spec, self.task.episode_s, g, m)
+            self._t0s, self._ramps, self._ways, self._nseg = self.task.sample_targets(g)
             self._k = 0
             self._energy_J = 0.0
             self._exhausted = False
@@ -518,33 +520,29 @@ class HardwareNeckEnv(gym.Env):
         if not self._episode_active:
             raise RuntimeError("call reset() before step() (and after an error or the episode end)")
         try:
-            a = validate_action(action, self.action_mode, 1, single=True)[0]
-            return self._step(a)
+            return self._step(self.task.currents_A(action)[0])
         except BaseException as exc:
             self._fail(exc)
             if isinstance(exc, (RigError, ValueError, KeyboardInterrupt)):
                 raise
             raise RigError(f"rig step failed, relays switched off: {exc!r}") from exc
 
-    def _step(self, a: np.ndarray):
+    def _step(self, currents_A: np.ndarray):
         Is = self.task.supply_current_A
         T_now, _ = self._temperatures(self._last)
-        hot = T_now >= self.task.cutoff_C
-        if self.action_mode == "relay":
-            duty = a.astype(float)
-        else:
-            duty = np.clip((a / Is) ** 2, 0.0, 1.0)
-        duty[hot] = 0.0
-        # budget: scale this step so it cannot overdraw (the plant does the same in simulation)
+        # the task's rules, as the plant applies them in simulation: over-temperature cut, then
+        # the budget (scaled so this step cannot overdraw it)
+        cur = self.task.cut_hot(currents_A, T_now)
+        duty = np.clip((cur / Is) ** 2, 0.0, 1.0)  # relay mode: exactly 0 or 1
         left = self.task.energy_budget_J - self._energy_J
         planned = float((duty * Is ** 2 * self.estimate.resistance_ohm()).sum() * self.dt)
         if left <= 1e-9:
             duty[:] = 0.0
             self._exhausted = True
-        elif planned > left:
-            duty *= left / planned
+        else:
+            duty *= self.task.budget_energy_scale(planned, left)
         if self.action_mode == "relay" and not np.all((duty == 0) | (duty == 1)):
-            # a partial last step of the budget: hold the relays off rather than overdraw
+            # relays cannot pass a fraction: hold them off rather than overdraw the last step
             duty[:] = 0.0
             self._exhausted = True
         if self.action_mode == "relay":
@@ -610,20 +608,19 @@ class HardwareNeckEnv(gym.Env):
         T, source = self._temperatures(tm)
         gx, gy = self._target_now
         b = self.task.energy_budget_J
-        frac = 1.0 if math.isinf(b) else max(0.0, 1.0 - self._energy_J / b)
+        left = max(b - self._energy_J, 0.0)
         obs = np.empty(8, np.float32)
-        fill_observation(obs, tx, ty, T[0], T[1], T[2], gx, gy, frac)
+        fill_observation(obs, tx, ty, T[0], T[1], T[2], gx, gy, self.task.budget_fraction_left(left))
         th, ph = tilt_angles_deg(tx, ty)
         tth, tph = tilt_angles_deg(gx, gy)
-        info = {"theta_deg": float(th), "phi_deg": float(ph), "temperatures_C": T.copy(),
-                "energy_J": float(self._energy_J), "currents_A": np.asarray(rms, float).copy(),
-                "tracking_error_deg": float(tracking_error_deg(tx, ty, gx, gy)),
-                "target_theta_deg": float(tth), "target_phi_deg": float(tph),
-                "energy_left_J": float(max(b - self._energy_J, 0.0)),
-                "budget_exhausted": bool(self._exhausted),
-                "relays": tuple(bool(tm.relays >> k & 1) for k in range(3)),
-                "faults": P.Fault(tm.faults), "refused": int(refused), "late_s": float(late),
-                "temperature_source": source}
+        info = step_info(theta_deg=float(th), phi_deg=float(ph), temperatures_C=T.copy(),
+                         energy_J=float(self._energy_J), currents_A=np.asarray(rms, float).copy(),
+                         tracking_error_deg=float(tracking_error_deg(tx, ty, gx, gy)),
+                         target_theta_deg=float(tth), target_phi_deg=float(tph),
+                         energy_left_J=float(left), budget_exhausted=bool(self._exhausted))
+        info.update({"relays": tuple(bool(tm.relays >> k & 1) for k in range(3)),
+                     "faults": P.Fault(tm.faults), "refused": int(refused), "late_s": float(late),
+                     "temperature_source": source})
         if self._writer is not None:
             info["recording"] = str(self._writer.path)
         return obs, info

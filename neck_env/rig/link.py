@@ -184,6 +184,12 @@ class RigLink:
                 self._replies.append(rx)
             self._cv.notify_all()
 
+    @property
+    def lost(self) -> BaseException | None:
+        """Why the port failed since it was (re)opened (the reader's error), else None; a lost
+        link needs ``reconnect()`` before it carries commands again."""
+        return self._lost
+
     def check(self) -> None:
         """Raise :class:`RigLinkLost` if the port has failed since it was opened."""
         if self._lost is not None:

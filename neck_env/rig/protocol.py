@@ -15,6 +15,7 @@ authority and the HIL tests check the two agree.
 
 from __future__ import annotations
 
+import binascii
 import enum
 import math
 import struct
@@ -157,27 +158,14 @@ class ProtocolError(ValueError):
 # ---------------------------------------------------------------------------
 
 
-def _make_crc_table() -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return tuple(table)
-
-
-_CRC_TABLE = _make_crc_table()
-
-
 def crc16_ccitt(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF, MSB first, no final xor.
+    """CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF, MSB first, no final xor -- the firmware's
+    ``_crc_xmodem_update`` chain from 0xFFFF (``tests/test_rig_protocol.py`` checks it bit for
+    bit against that routine; the HIL tests against the firmware itself).
 
     ``crc16_ccitt(b"123456789") == 0x29B1`` (the catalogue check value).
     """
-    for b in bytes(data):
-        crc = ((crc << 8) & 0xFFFF) ^ _CRC_TABLE[((crc >> 8) ^ b) & 0xFF]
-    return crc
+    return binascii.crc_hqx(bytes(data), crc)
 
 
 def encode_frame(msg_type: int, seq: int, payload: bytes = b"", version: int = PROTOCOL_VERSION) -> bytes:

@@ -1,5 +1,5 @@
 """The paper's step experiment on the rig: one muscle at a fixed current for some seconds, then
-cooling, recorded (design.md 2.2) for ``neck-gap`` or a comparison with the simulator.
+cooling, recorded (docs/recording-format.md) for ``neck-gap`` or a comparison with the simulator.
 
 It runs through :class:`~neck_env.rig.hardware_env.HardwareNeckEnv` in relay mode, so the
 pulse gets the same safety (all relays off on any error or Ctrl-C), recording, pacing and

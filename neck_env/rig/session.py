@@ -31,7 +31,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..envs.core import DEFAULT_CUTOFF_C, MAX_CURRENT_A
+from ..task import DEFAULT_CUTOFF_C, MAX_CURRENT_A
 from ..experiments import REST, Recording
 from ..recording import META_FILE, RecordingError, read_recording
 from ..targets import TargetSpec

@@ -560,6 +560,26 @@ def test_telemetry_arrives_at_the_requested_rate(start_rig, rate):
     _assert_stack_headroom(link)
 
 
+def test_host_and_firmware_crcs_agree_bit_for_bit(start_rig):
+    """Every frame the firmware sends carries its CRC (avr-libc ``_crc_xmodem_update``) and the
+    host accepts only frames whose CRC matches its own (``binascii.crc_hqx``); every host frame
+    is ACKed only if the firmware's CRC matches. Telemetry varies (time, IMU noise), and so do
+    the duty commands: hundreds of distinct CRCs, none rejected either way."""
+    link = start_rig()
+    link.start_heartbeat(0.05)
+    start = link.mark()
+    link.expect_ack(P.Stream(100))
+    rng = random.Random(5)
+    for _ in range(40):
+        link.expect_ack(P.SetDuty(tuple(rng.randrange(0, 500) for _ in range(3))))
+    time.sleep(1.0)
+    link.expect_ack(P.SetDuty((0, 0, 0)))
+    link.expect_ack(P.Stream(0))
+    tel = link.messages(P.Telemetry, start)
+    assert len(tel) >= 80
+    assert link.decoder.bad_frames == 0 and not link.decode_errors
+
+
 def test_hardware_watchdog_resets_a_hung_loop(start_rig):
     link = start_rig()
     link.start_heartbeat(0.05)
