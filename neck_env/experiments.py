@@ -36,12 +36,16 @@ at ambient. ``REST`` says how close is close enough; the rig waits for it, the d
 
 from __future__ import annotations
 
+import argparse
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
 
 __all__ = ["Recording", "RestCriterion", "REST", "PROTOCOLS", "diagnosis_protocol",
-           "protocol_schedule"]
+           "protocol_schedule", "truth_path_for", "add_dataset_arguments", "dataset_arguments"]
 
 PROTOCOLS = ("mixed", "paper", "rig")
 PULSE_START_S = 2.0
@@ -199,3 +203,45 @@ def protocol_schedule(rng: np.random.Generator, protocol: str = "mixed", n_recor
         n = int(round(rec.duration_s * sample_hz)) + 1
         out.append((rec.description, rec.currents(np.arange(n) / sample_hz)))
     return out
+
+
+# -- what every dataset generator's command line shares ------------------------------------------
+
+def truth_path_for(out_dir: str | Path) -> Path:
+    """Where a generator writes the truth of a dataset folder: beside it, never inside."""
+    out_dir = Path(out_dir).resolve()
+    return out_dir.parent / f"{out_dir.name}.truth.json"
+
+
+def add_dataset_arguments(ap: argparse.ArgumentParser, effect_names: Sequence[str]) -> None:
+    """The options of a synthetic dataset: effects, seed, protocol, size, temperatures, truth."""
+    ap.add_argument("--effects", default="", help="comma-separated effect names (none: empty); "
+                    f"known: {', '.join(effect_names)}")
+    ap.add_argument("--effect-params", default=None,
+                    help='JSON mapping name -> parameters fixing magnitudes, e.g. '
+                         '\'{"imu_misalignment": {"yaw_deg": 8}}\'')
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--protocol", choices=PROTOCOLS, default="mixed")
+    ap.add_argument("--recordings", type=int, default=15)
+    ap.add_argument("--duration", type=float, default=30.0, help="seconds per recording")
+    ap.add_argument("--sample-hz", type=float, default=50.0)
+    tg = ap.add_mutually_exclusive_group()
+    tg.add_argument("--temperatures", dest="temperatures", action="store_true", default=None)
+    tg.add_argument("--no-temperatures", dest="temperatures", action="store_false")
+    ap.add_argument("--truth", default=None, help="truth JSON path (default: OUT_DIR.truth.json "
+                    "beside the folder)")
+
+
+def dataset_arguments(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
+    """(effects: names or a name -> parameters mapping, the generator's keyword arguments) from
+    ``add_dataset_arguments``' options; ValueError / JSONDecodeError name a bad one."""
+    effects: Any = [e.strip() for e in args.effects.split(",") if e.strip() and e.strip() != "none"]
+    if args.effect_params:
+        mapping = {e: {} for e in effects}
+        mapping.update(json.loads(args.effect_params))
+        effects = mapping
+    if args.recordings < 1 or args.duration <= 0 or args.sample_hz <= 0:
+        raise ValueError("--recordings, --duration and --sample-hz must be positive")
+    return effects, dict(seed=args.seed, protocol=args.protocol, n_recordings=args.recordings,
+                         duration_s=args.duration, sample_hz=args.sample_hz,
+                         temperatures=args.temperatures, truth_path=args.truth)

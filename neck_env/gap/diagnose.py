@@ -34,9 +34,9 @@ from .. import effects as fx
 from ..recording import Dataset
 from . import localize
 from .fit import Candidate, Fitter, covariance
-from .model import (DRAFT_FROM, EFFECT_SPECS, STRUCTURE, switched_off, REPLACES, SCANNED, Model, ParamSpec, Prediction, Prepared,
-                    catalogue_effects, clip_to_catalogue, drift_specs, prepare, residual_parts, tilt_vec,
-                    wrap180)
+from .model import (DRAFT_FROM, EFFECT_SPECS, SCANNED, STRUCTURE, SUPPLY_OFF_V, Model, ParamSpec,
+                    Prediction, Prepared, drift_specs, prepare, residual_parts, switched_off,
+                    tilt_vec)
 
 ALPHA = 0.01  # held-out F test level
 T_CRIT = 2.0  # held-out paired t over 5 s blocks (consistency, not the main test)
@@ -225,35 +225,30 @@ def significant(c: dict) -> bool:
 
 def effect_candidate(model: Model, names: Sequence[str], nominal_values: dict[str, float],
                      effect_values: dict[str, float] | None = None) -> Candidate:
-    replaced = set()
-    for n in names:
-        replaced |= set(REPLACES.get(n, ()))
-    specs: list[ParamSpec] = []
-    fixed: dict[str, float] = {}
-    for s in model.nominal:
-        if s.key in replaced:
-            fixed[s.key] = s.start
-        else:
-            specs.append(s)
+    """The whole baseline plus the effects ``names``, started at the given values."""
+    specs: list[ParamSpec] = list(model.nominal)
     for n in names:
         specs.extend(EFFECT_SPECS[n])
     vals = dict(nominal_values)
     vals.update(effect_values or {})
+    fixed: dict[str, float] = {}
     if "convection_change" in names:
         fixed[DRAFT_FROM] = float(vals.get(DRAFT_FROM, model.data.n_rec))
     c = Candidate("+".join(names) if names else "nominal", tuple(names), specs, fixed)
-    c.u = np.array([s.to_unit(min(max(vals.get(s.key, s.start), s.lower), s.upper))
-                    for s in specs])
+    c.u = c.u_from(vals)
     return c
 
 
 def structure_candidate(model: Model, name: str, nominal_values: dict[str, float]) -> Candidate:
     """The nominal model plus one generic structural discrepancy (``model.STRUCTURE``)."""
-    specs = list(model.nominal) + list(STRUCTURE[name])
-    c = Candidate(name, (), specs)
-    c.u = np.array([s.to_unit(min(max(nominal_values.get(s.key, s.start), s.lower), s.upper))
-                    for s in specs])
+    c = Candidate(name, (), list(model.nominal) + list(STRUCTURE[name]))
+    c.u = c.u_from(nominal_values)
     return c
+
+
+def _latin_hypercube(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
+    """n points in [0, 1)^k, one in each of n slices of every axis."""
+    return (rng.permuted(np.tile(np.arange(n), (k, 1)), axis=1).T + rng.random((n, k))) / n
 
 
 def scan_points(specs: Sequence[ParamSpec], rng: np.random.Generator) -> np.ndarray:
@@ -261,7 +256,7 @@ def scan_points(specs: Sequence[ParamSpec], rng: np.random.Generator) -> np.ndar
     k = len(specs)
     if all(s.kind == "sensor" for s in specs):
         n = SCAN_SENSOR
-        u = (rng.permuted(np.tile(np.arange(n), (k, 1)), axis=1).T + rng.random((n, k))) / n
+        u = _latin_hypercube(n, k, rng)
         return np.vstack([[s.to_unit(s.start) for s in specs], u])
     m = SCAN_GRID.get(k, 2)
     axes = [np.linspace(0.1, 0.9, m)] * k
@@ -282,7 +277,7 @@ def _scan_values(name: str, specs: Sequence[ParamSpec], rng: np.random.Generator
         # the limit binds only below ~ 8 A x R_load (~6-8 V): above that the cost is flat, so
         # a coarse log grid over 1.5-40 V would leave the fit stranded at "off"
         return [{"supply_limit.compliance_V": v} for v in
-                (2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 40.0)]
+                (2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, SUPPLY_OFF_V)]
     if name != "convection_change":
         return [{s.key: s.from_unit(float(x)) for s, x in zip(specs, u)}
                 for u in scan_points(specs, rng)]
@@ -335,7 +330,7 @@ def fit_baseline(model: Model, fitter: Fitter, rng: np.random.Generator, max_ite
     specs = list(model.nominal)
     keys = [s.key for s in specs]
     k = len(SCANNED)
-    lhs = (rng.permuted(np.tile(np.arange(n_scan), (k, 1)), axis=1).T + rng.random((n_scan, k))) / n_scan
+    lhs = _latin_hypercube(n_scan, k, rng)
     base = Candidate("nominal", (), specs)
     trial_u = []
     for row in lhs:
@@ -362,9 +357,7 @@ def scan_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
         cand = effect_candidate(model, base_effects + [name], base_values)
         for vals in _scan_values(name, specs, rng, model.data.n_rec):
             merged = {**base_values, **vals}
-            st = cand.setting(np.array(
-                [s.to_unit(min(max(merged.get(s.key, s.start), s.lower), s.upper))
-                 for s in cand.specs]))
+            st = cand.setting(cand.u_from(merged))
             if DRAFT_FROM in vals:
                 st[DRAFT_FROM] = vals[DRAFT_FROM]
             settings.append(st)
@@ -499,7 +492,7 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
             "singular_values": [float(v) for v in sv],
             "condition_number": float(sv[0] / sv[-1]) if sv.size and sv[-1] > 0 else math.inf,
             "weak_directions": weak, "strong_correlations": strong_corr,
-            "identifiable": [s.key for s, sd in zip(cand.specs, std) if _identified(s, sd, params)]}
+            "identifiable": [k for k, v in params.items() if v["identified"]]}
 
 
 def _identified(spec: ParamSpec, std: float, params: dict) -> bool:
@@ -633,7 +626,6 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
         say(f"  {c.name:26s} held-out gap {s['gap_before']:.3f} -> {s['gap_after']:.3f} deg "
             f"({100 * s['reduction']:+.0f} %, F = {s['F']:.2f} > {s['F_crit']:.2f}?, t = {s['t']:.1f})"
             f"{'  *' if significant(s) else ''}")
-    # (moved below the nulls' comparison)
 
     # 4. decision, pairs
     sig = [c for c in singles if responsible(single_cmp[c.name])]

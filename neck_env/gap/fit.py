@@ -60,6 +60,12 @@ class Candidate:
         if self.u is None:
             self.u = np.array([s.to_unit(s.start) for s in self.specs])
 
+    def u_from(self, values: Mapping[str, float]) -> np.ndarray:
+        """Unit coordinates of natural ``values`` (missing ones at their start), clipped into
+        the bounds."""
+        return np.array([s.to_unit(min(max(values.get(s.key, s.start), s.lower), s.upper))
+                         for s in self.specs])
+
     def setting(self, u: np.ndarray | None = None) -> dict[str, float]:
         u = self.u if u is None else u
         out = dict(self.fixed)

@@ -189,7 +189,8 @@ import numpy as np
 from numba import njit
 
 from neck_env.effects import CATALOGUE, EFFECTS
-from neck_env.experiments import PROTOCOLS, diagnosis_protocol
+from neck_env.experiments import (PROTOCOLS, add_dataset_arguments, dataset_arguments,
+                                  diagnosis_protocol, truth_path_for)
 from neck_env.recording import write_meta, write_recording
 
 __all__ = ["RigParams", "CALIBRATED", "CALIBRATION_TABLE", "PAPER_TABLE1", "generate",
@@ -941,11 +942,6 @@ def _resolve_effects(effects, rng: np.random.Generator, p: RigParams, n_rec: int
     return out
 
 
-def truth_path_for(out_dir: str | Path) -> Path:
-    """Where the truth of a dataset folder goes by default: beside it, never inside."""
-    out_dir = Path(out_dir).resolve()
-    return out_dir.parent / f"{out_dir.name}.truth.json"
-
 
 def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "mixed",
              n_recordings: int = 15, duration_s: float = 30.0, sample_hz: float = 50.0,
@@ -1057,22 +1053,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("out_dir", nargs="?", help="dataset folder to write (its *.csv are replaced)")
     ap.add_argument("--calibrate", action="store_true",
                     help="redo the Table 1 fit and print the constants and the table")
-    ap.add_argument("--effects", default="", help="comma-separated effect names (none: empty); "
-                    f"known: {', '.join(EFFECTS)}")
-    ap.add_argument("--effect-params", default=None,
-                    help='JSON mapping name -> parameters fixing magnitudes, e.g. '
-                         '\'{"imu_misalignment": {"yaw_deg": 8}}\'')
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--protocol", choices=PROTOCOLS, default="mixed")
-    ap.add_argument("--recordings", type=int, default=15)
-    ap.add_argument("--duration", type=float, default=30.0, help="seconds per recording")
-    ap.add_argument("--sample-hz", type=float, default=50.0)
-    tg = ap.add_mutually_exclusive_group()
-    tg.add_argument("--temperatures", dest="temperatures", action="store_true", default=None)
-    tg.add_argument("--no-temperatures", dest="temperatures", action="store_false")
+    add_dataset_arguments(ap, list(EFFECTS))
     ap.add_argument("--baseline", choices=("wide", "default"), default="wide")
-    ap.add_argument("--truth", default=None, help="truth JSON path (default: OUT_DIR.truth.json "
-                    "beside the folder)")
     args = ap.parse_args(argv)
     if args.calibrate:
         print("current constants:")
@@ -1089,18 +1071,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.out_dir:
         ap.error("OUT_DIR is required (or --calibrate)")
     try:
-        effects = [e.strip() for e in args.effects.split(",") if e.strip() and e.strip() != "none"]
-        if args.effect_params:
-            mapping = {e: {} for e in effects}
-            mapping.update(json.loads(args.effect_params))
-            effects = mapping
-        if args.recordings < 1 or args.duration <= 0 or args.sample_hz <= 0:
-            raise ValueError("--recordings, --duration and --sample-hz must be positive")
+        effects, kwargs = dataset_arguments(args)
         t0 = time.perf_counter()
-        truth = generate(args.out_dir, effects, seed=args.seed, protocol=args.protocol,
-                         n_recordings=args.recordings, duration_s=args.duration,
-                         sample_hz=args.sample_hz, temperatures=args.temperatures,
-                         baseline=args.baseline, truth_path=args.truth)
+        truth = generate(args.out_dir, effects, baseline=args.baseline, **kwargs)
     except (ValueError, json.JSONDecodeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -32,7 +32,7 @@ ideal gyro the complementary filter has no lag).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -148,6 +148,8 @@ def drift_offset(setting: Mapping[str, float], axis: str, t_cum: np.ndarray) -> 
 
 # Effect parameters as fitted: bounds extended down to "off" so that every candidate nests the
 # nominal model (an effect can always be switched off by the fit).
+SUPPLY_OFF_V = fx.EFFECTS["supply_limit"].params["compliance_V"].upper
+
 EFFECT_SPECS: dict[str, list[ParamSpec]] = {
     # the mount's tilt reads as a constant tilt offset: the baseline's zero offset carries it
     "imu_misalignment": [
@@ -161,9 +163,9 @@ EFFECT_SPECS: dict[str, list[ParamSpec]] = {
         ParamSpec("backbone_viscoelasticity.stiffness_ratio", 0.0, 3.5, 0.5, "plant"),
         ParamSpec("backbone_viscoelasticity.tau_s", 0.3, 10.0, 2.0, "plant", log=True),
     ],
-    # 40 V drives 8 A through any plausible load: the top of the range is "no limit"
+    # the catalogue's top (40 V) drives 8 A through any plausible load: "no limit"
     "supply_limit": [
-        ParamSpec("supply_limit.compliance_V", 1.5, 40.0, 40.0, "plant", log=True),
+        ParamSpec("supply_limit.compliance_V", 1.5, SUPPLY_OFF_V, SUPPLY_OFF_V, "plant", log=True),
     ],
     "actuation_delay": [
         ParamSpec("actuation_delay.delay_s", 0.0, 1.3, 0.2, "input"),
@@ -207,7 +209,7 @@ STRUCTURE: dict[str, list[ParamSpec]] = {
 # Each effect switched off: the value at which it is exactly the nominal model (the nesting).
 EFFECT_OFF: dict[str, float] = {
     "imu_misalignment.yaw_deg": 0.0, "head_payload.mass_kg": 0.0,
-    "backbone_viscoelasticity.stiffness_ratio": 0.0, "supply_limit.compliance_V": 40.0,
+    "backbone_viscoelasticity.stiffness_ratio": 0.0, "supply_limit.compliance_V": SUPPLY_OFF_V,
     "actuation_delay.delay_s": 0.0, "thermal_coupling.conductance_W_K": 0.0,
     "convection_change.tcoef_per_K": 0.0, "convection_change.gain": 1.0,
     "sma_fatigue.rate": 0.0, "backbone_friction.friction_Nm": 0.0,
@@ -219,8 +221,6 @@ def switched_off(setting: Mapping[str, float]) -> dict[str, float]:
     return {k: (EFFECT_OFF[k] if k in EFFECT_OFF else v) for k, v in setting.items()}
 
 
-# Nominal parameters an effect replaces (held at their calibrated value while it is fitted).
-REPLACES: dict[str, tuple[str, ...]] = {}
 FIXED_EFFECT_PARAMS = {"supply_limit": {"wiring_ohm": 0.1}}
 DRAFT_FROM = "convection_change.draft_from"  # first recording under the draft (fixed, scanned)
 

@@ -52,7 +52,8 @@ from ..params import NeckParams, default_params
 from ..physics import layout as L
 from ..physics.compile import jit
 from ..physics.plant import constants_from_params, initial_state, step_inplace
-from ..experiments import PROTOCOLS, protocol_schedule
+from ..experiments import (add_dataset_arguments, dataset_arguments, protocol_schedule,
+                           truth_path_for)
 from ..recording import write_meta, write_recording
 from ..sensors import SensorParams, imu_reading
 
@@ -335,29 +336,11 @@ def baseline_ratios(params: NeckParams) -> dict[str, float]:
     }
 
 
-def truth_path_for(out_dir: str | Path) -> Path:
-    """Where the truth of a dataset folder goes by default: beside it, never inside."""
-    out_dir = Path(out_dir).resolve()
-    return out_dir.parent / f"{out_dir.name}.truth.json"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m neck_env.gap.synthetic", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out_dir", help="dataset folder to write (its *.csv are replaced)")
-    ap.add_argument("--effects", default="", help="comma-separated effect names (none: empty); "
-                    f"known: {', '.join(fx.EFFECTS)}")
-    ap.add_argument("--effect-params", default=None,
-                    help='JSON mapping name -> parameters fixing magnitudes, e.g. '
-                         '\'{"imu_misalignment": {"yaw_deg": 8}}\'')
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--protocol", choices=PROTOCOLS, default="mixed")
-    ap.add_argument("--recordings", type=int, default=15)
-    ap.add_argument("--duration", type=float, default=30.0, help="seconds per recording")
-    ap.add_argument("--sample-hz", type=float, default=50.0)
-    tgroup = ap.add_mutually_exclusive_group()
-    tgroup.add_argument("--temperatures", dest="temperatures", action="store_true", default=None)
-    tgroup.add_argument("--no-temperatures", dest="temperatures", action="store_false")
+    add_dataset_arguments(ap, list(fx.EFFECTS))
     ap.add_argument("--hard", action="store_true", help="a rig further from the model: larger "
                     "parameter spread, unfitted parameters perturbed, 5 ms integration, more "
                     "sensor noise")
@@ -365,22 +348,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="default: the calibrated rig perturbed by a few per cent; wide: a rig "
                          "far from the defaults (h x0.3-x4, transformation temperatures +-15 C, "
                          "EI x0.5-x2, C_A x0.5-x3, ...)")
-    ap.add_argument("--truth", default=None, help="truth JSON path (default: OUT_DIR.truth.json "
-                    "beside the folder)")
     args = ap.parse_args(argv)
     try:
-        effects = [e for e in args.effects.split(",") if e.strip() and e.strip() != "none"]
-        if args.effect_params:
-            given = json.loads(args.effect_params)
-            mapping = {e: {} for e in effects}
-            mapping.update(given)
-            effects = mapping
-        if args.recordings < 1 or args.duration <= 0 or args.sample_hz <= 0:
-            raise ValueError("--recordings, --duration and --sample-hz must be positive")
-        truth = generate(args.out_dir, effects, seed=args.seed, protocol=args.protocol,
-                         n_recordings=args.recordings, duration_s=args.duration,
-                         sample_hz=args.sample_hz, temperatures=args.temperatures,
-                         truth_path=args.truth, hard=args.hard, baseline=args.baseline)
+        effects, kwargs = dataset_arguments(args)
+        truth = generate(args.out_dir, effects, hard=args.hard, baseline=args.baseline, **kwargs)
     except (ValueError, json.JSONDecodeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
