@@ -9,7 +9,6 @@ written last, and only when everything before it succeeded).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -54,11 +53,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         dg = diagnose(without(ds, [b["recording"] for b in bent]), log=log)
         rep = write_outputs(dg, args.json, dataset_path=Path(args.dataset),
-                            make_plots=not args.no_plots)
-        rep["not_at_rest"] = bent
-        tmp = Path(args.json).with_name(Path(args.json).name + ".tmp")
-        tmp.write_text(json.dumps(rep, indent=2) + "\n")
-        tmp.replace(args.json)
+                            make_plots=not args.no_plots, extra={"not_at_rest": bent})
     except RecordingError as exc:
         print(f"neck-gap: bad input: {exc}", file=sys.stderr)
         return 2

@@ -356,8 +356,9 @@ def _atomic_write(path: Path, text: str) -> None:
 
 
 def write_outputs(dg: "D.Diagnosis", json_path: str | Path, dataset_path=None,
-                  make_plots: bool = True) -> dict:
-    """Write plots, corrected model files and (last) the JSON report; returns the report."""
+                  make_plots: bool = True, extra: dict | None = None) -> dict:
+    """Write plots, corrected model files and (last) the JSON report with ``extra`` keys
+    added; returns the report."""
     json_path = Path(json_path)
     json_path.parent.mkdir(parents=True, exist_ok=True)
     stem = json_path.with_suffix("")
@@ -379,6 +380,7 @@ def write_outputs(dg: "D.Diagnosis", json_path: str | Path, dataset_path=None,
     _atomic_write(e_path, json.dumps(eff, indent=2) + "\n")
     outputs["effects"] = str(e_path)
     rep = build_report(dg, dataset_path)
+    rep.update(extra or {})
     rep["outputs"] = outputs
     rep["usage"] = ("gymnasium.make('NeckTrack-v0', params=REPORT_params.json path, "
                     "effects=json.load(open(REPORT_effects.json)))")
