@@ -323,3 +323,21 @@ def test_env_waits_for_the_springs_to_cool_before_an_episode(fw):
         assert env2.estimate.temperatures_C[1] <= 28.0
     finally:
         env2.close()
+
+
+@pytest.mark.parametrize("mask, spring_T", [(0b101, False), (0b111, True)])
+def test_env_records_partial_thermistors_beside_the_spring_temperatures(fw, tmp_path, mask,
+                                                                        spring_T):
+    """T1..T3 are the spring temperatures only as a complete set (the recording format); a
+    partial set of thermistors is kept as Tk_ntc columns and the recording still reads back."""
+    env = _env(fw, action_mode="relay", thermistors=mask, record_dir=tmp_path)
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(np.array([1, 0, 0]))
+    env.close()
+    header = env.recordings[0].read_text().splitlines()[0].split(",")
+    want = ["T1", "T2", "T3"] if spring_T else ["T1_ntc", "T3_ntc"]
+    assert [c for c in header if c.startswith("T") and not c.endswith("_est")] == want
+    rec = read_recording(env.recordings[0])
+    assert rec.n >= 8
+    assert read_dataset(tmp_path).has_temperatures is spring_T

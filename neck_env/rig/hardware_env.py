@@ -38,6 +38,15 @@ RECORD_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg",
                   "T1_est", "T2_est", "T3_est", "ax", "ay", "az", "gx", "gy", "gz",
                   "relays", "faults", "target_theta_deg", "target_phi_deg", "t_mcu_ms")
 THERMISTOR_COLUMNS = ("T1", "T2", "T3")
+
+
+def thermistor_columns(mask: int) -> list[tuple[int, str]]:
+    """(muscle index, column) of the fitted thermistors: ``T1..T3`` with all three fitted (the
+    recording format reads spring temperatures only as a complete set), else ``Tk_ntc`` for
+    each fitted one (an extra column: kept, not used by the diagnosis)."""
+    if mask == 0b111:
+        return list(enumerate(THERMISTOR_COLUMNS))
+    return [(k, f"T{k + 1}_ntc") for k in range(3) if mask >> k & 1]
 TELEMETRY_TIMEOUT_S = 0.3  # no telemetry for this long while running: the link is dead
 FIRST_SAMPLE_TIMEOUT_S = 1.0
 MEMORY_SAVE_PERIOD_S = 1.0  # a killed host loses at most this much of the springs' history
@@ -139,7 +148,8 @@ class HardwareNeckEnv(gym.Env):
 
     With `record_dir`, every episode writes `rec_NN.csv` (format: docs/recording-format.md;
     `t`, commanded `i1..i3` = `I_s` while the relay pin is on, `theta_deg`, `phi_deg`, `T1..T3`
-    only from thermistors; the estimate as `T1_est..`, raw IMU, relays, faults, target) at the
+    only from thermistors on all three muscles -- a partial set as `Tk_ntc` --; the estimate as
+    `T1_est..`, raw IMU, relays, faults, target) at the
     telemetry rate, flushed at least every 0.5 s, and `meta.json`; `neck_env.gap` reads the
     folder as it is.
 
@@ -292,9 +302,8 @@ class HardwareNeckEnv(gym.Env):
                "t_mcu_ms": tm.t_ms}
         T = self._T_est
         row.update({"T1_est": T[0], "T2_est": T[1], "T3_est": T[2]})
-        if self.thermistor_mask:
-            for k, name in enumerate(THERMISTOR_COLUMNS):
-                row[name] = P.ntc_adc_to_celsius(tm.thermistors[k]) if self.thermistor_mask >> k & 1 else ""
+        for k, name in thermistor_columns(self.thermistor_mask):
+            row[name] = P.ntc_adc_to_celsius(tm.thermistors[k])
         return row
 
     # -- helpers ------------------------------------------------------------------------------
@@ -367,8 +376,7 @@ class HardwareNeckEnv(gym.Env):
                 n += 1
                 path = self.record_dir / f"rec_{n:02d}.csv"
         cols = list(RECORD_COLUMNS)
-        if self.thermistor_mask:
-            cols[6:6] = THERMISTOR_COLUMNS
+        cols[6:6] = [name for _, name in thermistor_columns(self.thermistor_mask)]
         self._writer = RecordingWriter(path, cols)
         self.recordings.append(path)
 
