@@ -18,7 +18,8 @@ random stream):
 * ``imu_tilt_series`` -- both over a time series of poses of one rig (the batched form for
   recorded-rate data, e.g. synthetic datasets);
 * ``accel_tilt_batch`` -- the noise-free accelerometer tilt of many poses (the filter's
-  settled value, e.g. for a model fitted to recorded tilt).
+  settled value, e.g. for a model fitted to recorded tilt);
+* ``thermistor_lag_series`` -- what a lagging thermistor reads of a spring's temperature.
 
 The env core calls the first two per rig and step inside its compiled pass.
 """
@@ -188,3 +189,27 @@ def accel_tilt_batch(q, mount, out):
     for k in range(q.shape[0]):
         imu_reading(q[k], q[k], 1.0, mount, tip, dtip, rot, v, w, r)
         out[k, 0], out[k, 1] = tilt_from_accel(r[0], r[1], r[2])
+
+
+@jit
+def thermistor_lag_series(x, t_s, tau_s, out):
+    """What a thermistor with time constant ``tau_s`` reads of temperatures ``x`` (G, N) at
+    sample times ``t_s`` (G,): a first-order lag, exact for ``x`` linear between samples (so
+    uneven sample spacing is fine), starting settled (``out[0] = x[0]``). Fills ``out``.
+
+    A bead glued to a spring lags it by ~0.5-2 s: while the spring heats at 10-20 C/s the
+    reading trails by tens of degrees, which a model without the lag can only match by
+    distorting the heat balance."""
+    n = x.shape[1]
+    for j in range(n):
+        out[0, j] = x[0, j]
+    for k in range(1, x.shape[0]):
+        dt = t_s[k] - t_s[k - 1]
+        if tau_s <= 0.0 or dt <= 0.0:
+            for j in range(n):
+                out[k, j] = x[k, j]
+            continue
+        e = math.exp(-dt / tau_s)
+        for j in range(n):
+            slope_tau = tau_s * (x[k, j] - x[k - 1, j]) / dt
+            out[k, j] = x[k, j] - slope_tau + (out[k - 1, j] - x[k - 1, j] + slope_tau) * e

@@ -25,7 +25,8 @@ How the "real" rig differs from the nominal model:
 * integration: the plant runs at 10 ms (the diagnosis simulates at 20 ms),
 * sensors: an MPU6050 model -- accelerometer and gyro readings of the head pose (through the
   IMU mount), per-dataset biases and white noise (``SensorParams``) -- fused by the rig's own
-  complementary filter (``observation.fuse_tilt``) at 50 Hz; theta/phi come from that tilt;
+  complementary filter at 50 Hz (the project's sensor chain, ``sensors.imu_tilt_series``);
+  theta/phi come from that tilt;
   thermistor noise on T1..T3 when temperatures are recorded (random per dataset unless given),
 * effects (zero, one or two) with magnitudes drawn uniformly in their catalogue ranges (or
   given): plant effects through ``effects.apply_to_constants``, ``imu_misalignment`` through
@@ -47,47 +48,15 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .. import effects as fx
-from ..observation import FILTER_TAU_S, fuse_tilt, tilt_from_accel
 from ..params import NeckParams, default_params
 from ..physics import layout as L
-from ..physics.compile import jit
 from ..physics.plant import constants_from_params, initial_state, step_inplace
 from ..experiments import (add_dataset_arguments, dataset_arguments, protocol_schedule,
                            truth_path_for)
 from ..recording import write_meta, write_recording
-from ..sensors import SensorParams, imu_reading
+from ..sensors import SensorParams, imu_tilt_series
 
 GEN_DT_S = 0.01
-
-
-# -- sensors ---------------------------------------------------------------------------------------
-
-@jit
-def _sense(qs, dt, mount, abias, gbias, drift0, drift_rate, a_noise, g_noise, out):
-    """Readings of the IMU for poses qs (n, 3) at period dt, fused by the rig's filter.
-
-    ``a_noise`` (n, 3) and ``g_noise`` (n, 2) are the pre-drawn white noises; the gyro bias
-    grows as drift0 + drift_rate * t. Fills out (n, 2) with the fused tilt vector (deg)."""
-    tip, dtip, rot = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
-    v, w, r = np.empty(3), np.empty(3), np.empty(6)
-    n = qs.shape[0]
-    bx = 0.0
-    by = 0.0
-    for k in range(n):
-        prev = qs[k - 1] if k > 0 else qs[0]
-        imu_reading(qs[k], prev, dt, mount, tip, dtip, rot, v, w, r)
-        drift = drift0 + drift_rate * k * dt
-        ax = r[0] + abias[0] + a_noise[k, 0]
-        ay = r[1] + abias[1] + a_noise[k, 1]
-        az = r[2] + abias[2] + a_noise[k, 2]
-        gx = r[3] + gbias[0] + drift + g_noise[k, 0]
-        gy = r[4] + gbias[1] + drift + g_noise[k, 1]
-        if k == 0:
-            bx, by = tilt_from_accel(ax, ay, az)
-        else:
-            bx, by = fuse_tilt(bx, by, ax, ay, az, gx, gy, dt, FILTER_TAU_S)
-        out[k, 0] = bx
-        out[k, 1] = by
 
 
 # -- generation ------------------------------------------------------------------------------------
@@ -285,8 +254,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         tilt = np.empty((n, 2))
         a_noise = rng.normal(0.0, sensors.accel_noise_g, (n, 3))
         g_noise = rng.normal(0.0, sensors.gyro_noise_dps, (n, 2))
-        _sense(np.ascontiguousarray(qs), 1.0 / sample_hz, np.ascontiguousarray(mount), abias,
-               gbias, drift_rate * t_cum, drift_rate, a_noise, g_noise, tilt)
+        imu_tilt_series(np.ascontiguousarray(qs), 1.0 / sample_hz, np.ascontiguousarray(mount),
+                        abias, gbias, drift_rate * t_cum, drift_rate, a_noise, g_noise, tilt)
         t = np.arange(n) / sample_hz
         cols = {"t": t, "i1": cmd[:, 0], "i2": cmd[:, 1], "i3": cmd[:, 2],
                 "theta_deg": np.hypot(tilt[:, 0], tilt[:, 1]),
