@@ -1,0 +1,52 @@
+"""The diagnosis's held-out decision rule (``gap.diagnose.significant`` / ``responsible``) on
+constructed comparisons: which evidence names an effect and which does not."""
+
+from dataclasses import replace
+
+import pytest
+
+from neck_env.gap.diagnose import MIN_REL, Comparison, responsible, significant
+
+
+def _cmp(**kw) -> Comparison:
+    base = dict(gap_before_deg=0.60, gap_after_deg=0.40, reduction=1 / 3, abs_reduction_deg=0.20,
+                t=2.5, blocks=35, blocks_improved=28, recordings=5, recordings_improved=5,
+                n_eff=40.0, F=2.25, F_crit=2.1)
+    base.update(kw)
+    return Comparison(**base)
+
+
+def test_f_test_with_a_consistent_improvement_names_the_effect():
+    assert significant(_cmp())
+    # one held-out recording of five without the excitation the effect needs: still consistent
+    assert significant(_cmp(t=1.8, recordings_improved=4))
+    # two of five not improved and a weak block t: not consistent
+    assert not significant(_cmp(t=1.8, recordings_improved=3))
+    # with three held-out recordings every one must improve
+    assert not significant(_cmp(t=1.8, recordings=3, recordings_improved=2))
+
+
+def test_paired_evidence_stands_without_the_f_test():
+    # a smooth structural residual leaves few effective samples (F_crit 5): every held-out
+    # recording improved and the block t carry the decision
+    assert significant(_cmp(F=4.4, F_crit=5.0, n_eff=9.0))
+    assert not significant(_cmp(F=4.4, F_crit=5.0, n_eff=9.0, recordings_improved=4))
+    assert not significant(_cmp(F=4.4, F_crit=5.0, n_eff=9.0, t=1.5))
+
+
+@pytest.mark.parametrize("change", [
+    dict(reduction=MIN_REL - 0.01, gap_after_deg=0.60 * (1 - MIN_REL + 0.01),
+         abs_reduction_deg=0.60 * (MIN_REL - 0.01), F=1.6, F_crit=1.5),
+    dict(gap_before_deg=0.06, gap_after_deg=0.02, abs_reduction_deg=0.04, reduction=2 / 3, F=9.0),
+])
+def test_a_small_improvement_is_never_an_effect(change):
+    # however consistent: under 20 % or under 0.05 deg of the held-out gap
+    assert not significant(_cmp(**change))
+
+
+def test_responsible_also_beats_the_best_structural_discrepancy():
+    c = _cmp()
+    assert responsible(c) and responsible(replace(c, vs_structure=_cmp()))
+    same = _cmp(gap_before_deg=0.41, reduction=0.01, abs_reduction_deg=0.01, F=1.02, t=0.3,
+                recordings_improved=3)
+    assert significant(c) and not responsible(replace(c, vs_structure=same))
