@@ -226,6 +226,30 @@ def test_every_effect_nests_the_nominal_model(tmp_path):
         assert moved > 1e-3, f"{name} at {u} of its range changes nothing"
 
 
+def test_thermistor_lag_reads_the_springs_late_and_shares_the_simulation(tmp_path):
+    """The baseline's thermistor lag changes only the temperatures the model reads (they trail
+    a heating spring), never the tilt, and costs no simulation of its own."""
+    from neck_env.gap import model as M
+
+    ds = tmp_path / "small"
+    generate(ds, [], seed=4, n_recordings=2, duration_s=12.0, temperatures=True)
+    mdl = M.Model(M.prepare(read_dataset(ds)))
+    base = {s.key: s.start for s in mdl.nominal}
+    assert base["thermistor_lag_s"] == 0.0  # centred on none: our own rig has no lag
+    before = mdl.sim_count
+    plain, lagged = mdl.predict([base, dict(base, thermistor_lag_s=1.2)])
+    assert mdl.sim_count - before == mdl.data.n_rec * mdl.data.n_steps  # one plant run for both
+    np.testing.assert_array_equal(plain.tilt_x, lagged.tilt_x)
+    heating = np.diff(plain.T[:, 0]) > 0.5  # a spring heating at > 5 C/s (10 Hz samples)
+    assert heating.any()
+    assert (lagged.T[1:, 0][heating] < plain.T[1:, 0][heating]).all()
+    assert np.abs(lagged.T - plain.T).max() > 5.0
+    # and the model without thermistors has no lag to fit
+    generate(tmp_path / "noT", [], seed=4, n_recordings=2, duration_s=12.0, temperatures=False)
+    assert "thermistor_lag_s" not in {s.key for s in
+                                      M.Model(M.prepare(read_dataset(tmp_path / "noT"))).nominal}
+
+
 # The structurally independent rig (neck_env.gap.independent: its own spring arrangement, head
 # inertia, exponential kinetics, integrator and Table 1 calibration, baseline drawn wide): the
 # model is knowingly wrong about its structure, so nothing may be blamed on effect-free data,
