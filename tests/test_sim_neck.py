@@ -61,3 +61,19 @@ def test_imu_misalignment_and_plant_effects_reach_the_neck():
     upright.update()
     ax, ay, az = (v / 8192.0 for v in h.imu[:3])
     assert np.degrees(np.arctan2(np.hypot(ax, ay), az)) == pytest.approx(3.0, abs=0.05)
+
+
+def test_gyro_bias_drift_grows_with_the_emulators_time():
+    rate = 0.015  # deg/s per s
+    h = ClockHarness([])
+    neck = SimulatedNeck(h, sensors=None, effects={"gyro_bias_drift": {"drift_dps_per_s": rate}})
+    still = SimulatedNeck(ClockHarness([]), sensors=None)
+    neck.update()
+    assert h.imu[3] == h.imu[4] == 0  # upright, at rest, no drift yet
+    for k in range(1, 2001):  # 20 s
+        h.t_us = k * 10_000
+        neck.update()
+    lsb = 65.5  # gyro LSB per deg/s
+    assert h.imu[3] / lsb == pytest.approx(rate * 20.0, abs=1 / lsb)
+    assert h.imu[4] / lsb == pytest.approx(rate * 20.0, abs=1 / lsb)
+    assert h.imu[5] == 0 and still.gyro_drift_dps_per_s == 0.0

@@ -13,7 +13,8 @@ agree whatever the emulator's speed; the host sees the same serial traffic as fr
 
 The neck can carry the catalogue's effects (``neck_env.effects``: plant effects through
 ``apply_to_constants``, ``imu_misalignment`` through ``imu_mount``, ``actuation_delay`` by
-applying relay edges late) and any ``NeckParams``; its "bench supply" current can be changed
+applying relay edges late, ``gyro_bias_drift`` as a gyro bias growing with the emulator's
+time, as the synthetic rig does through a dataset) and any ``NeckParams``; its "bench supply" current can be changed
 while it runs (:attr:`SimulatedNeck.supply_current_A`; ``EmulatedRig`` reads it from a file, so
 ``rig protocol --supply-cmd`` can set it like a programmable supply).
 """
@@ -65,6 +66,8 @@ class SimulatedNeck:
             consts, {k: v for k, v in eff.items() if fx.EFFECTS[k].kind == "plant"}))
         self.mount = np.ascontiguousarray(fx.imu_mount(eff))
         self.delay_us = int(round(fx.delay_s(eff) * 1e6))  # relay edges act this late
+        self.gyro_drift_dps_per_s = fx.gyro_drift(eff)  # added to gyro x and y, from the start
+        self.t_start_us: int | None = None
         self.effects = eff
         self.x = initial_state(self.consts, 1)
         self.sensors = sensors
@@ -105,7 +108,7 @@ class SimulatedNeck:
         """Advance the plant to the emulator's present time and publish the sensors."""
         now = self.h.sim_time_us()
         if self.t_us is None:
-            self.t_us = now
+            self.t_us = self.t_start_us = now
             self._publish(PLANT_DT_S)
             return
         events = self.h.relay_events
@@ -139,6 +142,9 @@ class SimulatedNeck:
         imu_reading(q, self._q_prev, max(dt_s, 1e-6), self.mount, tip, dtip, rot, v, w, r)
         a = r[:3] + self.accel_bias
         g = r[3:] + self.gyro_bias
+        if self.gyro_drift_dps_per_s:
+            drift = self.gyro_drift_dps_per_s * (self.t_us - self.t_start_us) * 1e-6
+            g = g + np.array([drift, drift, 0.0])
         if self.sensors is not None:
             a = a + self.rng.normal(0.0, self.sensors.accel_noise_g, 3)
             g = g + self.rng.normal(0.0, self.sensors.gyro_noise_dps, 3)
