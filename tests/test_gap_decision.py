@@ -46,7 +46,15 @@ def test_a_small_improvement_is_never_an_effect(change):
 
 def test_responsible_also_beats_the_best_structural_discrepancy():
     c = _cmp()
-    assert responsible(c) and responsible(replace(c, vs_structure=_cmp()))
+    assert responsible(c)
+    # a discrepancy that is itself a significant improvement is a rival: beat it significantly
     same = _cmp(gap_before_deg=0.41, reduction=0.01, abs_reduction_deg=0.01, F=1.02, t=0.3,
                 recordings_improved=3)
-    assert significant(c) and not responsible(replace(c, vs_structure=same))
+    assert significant(c) and not responsible(replace(c, vs_structure=same,
+                                                      structure_significant=True))
+    assert responsible(replace(c, vs_structure=_cmp(), structure_significant=True))
+    # one that explains nothing significant only has to be done better than
+    assert responsible(replace(c, vs_structure=same, structure_significant=False))
+    worse = _cmp(gap_before_deg=0.38, gap_after_deg=0.40, reduction=-0.05,
+                 abs_reduction_deg=-0.02, F=0.9, t=-1.0, recordings_improved=1)
+    assert not responsible(replace(c, vs_structure=worse, structure_significant=False))

@@ -187,6 +187,7 @@ class Comparison:
     F: float  # (gap_before / gap_after)^2
     F_crit: float  # F(n_eff, n_eff) at ALPHA
     vs_structure: "Comparison | None" = None  # against the best generic structural discrepancy
+    structure_significant: bool = False  # ... which is itself significant against the nominal
     vs_nominal: "Comparison | None" = None  # pairs: against the nominal refit
     accepted: bool | None = None  # pairs: accepted into the verdict
 
@@ -238,11 +239,22 @@ def compare(data: Prepared, before: Prediction, after: Prediction, mask: np.ndar
 
 
 def responsible(c: Comparison) -> bool:
-    """Significant against the nominal refit *and* against the best generic structural
+    """Significant against the nominal refit *and* beyond the best generic structural
     discrepancy (``vs_structure``): what a more flexible baseline explains as well is the
     model's structure, not an effect."""
+    return significant(c) and beats_structure(c)
+
+
+def beats_structure(c: Comparison) -> bool:
+    """Beyond the best structural discrepancy: significantly better than it when it is itself
+    a significant improvement on the nominal refit (then the structure is a rival
+    explanation), else merely better -- a discrepancy that explains nothing significant is
+    the nominal refit again, and asking for a second significant step would only take
+    power away."""
     vs = c.vs_structure
-    return significant(c) and (vs is None or significant(vs))
+    if vs is None:
+        return True
+    return significant(vs) if c.structure_significant else vs.gap_after_deg < vs.gap_before_deg
 
 
 def significant(c: Comparison) -> bool:
@@ -728,8 +740,10 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
         say(f"  {c.name:26s} held-out gap {s.gap_before_deg:.3f} -> {s.gap_after_deg:.3f} deg "
             f"({100 * s.reduction:+.0f} %)  [generic structural discrepancy]")
     if best_null is not None:
+        rival = significant(null_cmp[best_null.name])
         single_cmp = {c.name: replace(single_cmp[c.name],
-                                      vs_structure=compare(data, best_null.pred, c.pred, hold_mask))
+                                      vs_structure=compare(data, best_null.pred, c.pred, hold_mask),
+                                      structure_significant=rival)
                       for c in singles}
     singles.sort(key=lambda c: single_cmp[c.name].gap_after_deg)
     for c in singles:
@@ -889,13 +903,16 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     fitter.run(pairs, max_iter=max_iter)
     for p in pairs:
         settle_draft(fitter.model, p, hold_rec, hold_mask)
+    rival = (best_null is not None
+             and significant(compare(data, nominal.pred, best_null.pred, hold_mask)))
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         c = replace(compare(data, reference(p).pred, p.pred, hold_mask),
                     vs_nominal=compare(data, nominal.pred, p.pred, hold_mask),
                     vs_structure=(compare(data, best_null.pred, p.pred, hold_mask)
-                                  if best_null is not None else None))
-        accepted = bool(accept(c)) and (c.vs_structure is None or significant(c.vs_structure))
+                                  if best_null is not None else None),
+                    structure_significant=rival)
+        accepted = bool(accept(c)) and beats_structure(c)
         cmp[p.name] = replace(c, accepted=accepted)
     pairs.sort(key=lambda p: cmp[p.name].gap_after_deg)
     return cmp
