@@ -248,13 +248,13 @@ def responsible(c: Comparison) -> bool:
 def beats_structure(c: Comparison) -> bool:
     """Beyond the best structural discrepancy: significantly better than it when it is itself
     a significant improvement on the nominal refit (then the structure is a rival
-    explanation), else merely better -- a discrepancy that explains nothing significant is
-    the nominal refit again, and asking for a second significant step would only take
-    power away."""
+    explanation), else by the practical margin alone (``MIN_REL`` of its held-out gap) -- a
+    discrepancy that explains nothing significant is the nominal refit again, and a second
+    significance test against it would only take power away."""
     vs = c.vs_structure
     if vs is None:
         return True
-    return significant(vs) if c.structure_significant else vs.gap_after_deg < vs.gap_before_deg
+    return significant(vs) if c.structure_significant else vs.reduction >= MIN_REL
 
 
 def significant(c: Comparison) -> bool:
