@@ -53,6 +53,70 @@ def run_progress_bar(total_steps: int):
     return _Bar()
 
 
+class ProgressLines:
+    """Without the progress bar (a log file): one line per rollout at most every 30 s -- steps,
+    rate, elapsed, and the mean reward per step of the training episodes finished lately (the
+    env's -tracking error in deg; -e^2/10 with a residual's ``squared_error``)."""
+
+    def __new__(cls, total_steps: int, n_envs: int):
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        class _Lines(BaseCallback):
+            def _on_training_start(self) -> None:
+                self.t0 = self.last = time.time()
+
+            def _on_step(self) -> bool:
+                return True
+
+            def _on_rollout_end(self) -> None:
+                now = time.time()
+                if now - self.last < 30.0:
+                    return
+                self.last = now
+                eps = list(self.model.ep_info_buffer)
+                err = (f", mean reward per step of the last {len(eps)} episodes "
+                       f"{np.mean([e['r'] / e['l'] for e in eps]):.3f}" if eps else "")
+                n = self.model.num_timesteps
+                print(f"  {n:>10,}/{total_steps:,} steps, {n / (now - self.t0):,.0f} steps/s, "
+                      f"{(now - self.t0) / 60:.1f} min{err}", flush=True)
+
+        return _Lines()
+
+
+def write_curve(out: Path, record: dict) -> list[Path]:
+    """The evaluation curve (EvalCallback's evaluations.npz) as CSV and PNG: env steps against
+    the mean tracking error of the evaluation episodes (deg; reward = -error per step)."""
+    path = out / "evaluations.npz"
+    if not path.exists():
+        return []
+    d = dict(np.load(path))
+    start = out / "evaluation_at_start.npz"
+    if start.exists():
+        s0 = np.load(start)
+        d = {k: np.concatenate([s0[k], d[k]]) for k in ("timesteps", "results", "ep_lengths")}
+    err = -d["results"].mean(axis=1) / d["ep_lengths"].mean(axis=1)
+    csv_path = out / "curve.csv"
+    csv_path.write_text("timesteps,mean_tracking_error_deg\n" + "".join(
+        f"{t},{e:.4f}\n" for t, e in zip(d["timesteps"], err)))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(d["timesteps"], err, "o-")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("mean tracking error (deg)")
+    ax.set_title(f"{record['algo']} on {record['env_id']}, seed {record['seed']}: evaluation "
+                 f"episodes", fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    png = out / "curve.png"
+    fig.savefig(png, dpi=80)
+    plt.close(fig)
+    return [csv_path, png]
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algo", choices=ALGOS, default="ppo", help="SB3 algorithm (default: ppo)")
@@ -97,7 +161,15 @@ def main(argv: list[str] | None = None) -> int:
     config_path = args.config or CONFIG_DIR / f"{args.algo}.yml"
     cfg = load_config(config_path, args.env)
     cfg.setdefault("env_kwargs", {})
-    cfg["env_kwargs"] = {**cfg["env_kwargs"], **parse_kv(args.env_kwargs, "--env-kwargs")}
+    # the env id's own defaults (NeckTrack-v1: its budget and actuation), then the config's,
+    # then the command line's
+    import gymnasium as gym
+
+    import neck_env  # noqa: F401  (registers the ids)
+
+    spec_kwargs = dict(gym.spec(args.env).kwargs)
+    cfg["env_kwargs"] = {**spec_kwargs, **cfg["env_kwargs"],
+                         **parse_kv(args.env_kwargs, "--env-kwargs")}
     cfg.update(parse_kv(args.hyperparams, "--hyperparams"))
     if args.n_timesteps is not None:
         cfg["n_timesteps"] = args.n_timesteps
@@ -115,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
         model, env = build_model(args.algo, run, args.seed,
                                  out / "tb" if args.tensorboard else None, args.verbose)
         eval_env = make_env(4, args.seed + 10_000, cfg["env_kwargs"], normalize, frame_stack,
-                            False, unit_actions, run.gamma)
+                            False, unit_actions, run.gamma, run.residual)
     except (ValueError, TypeError) as exc:  # a bad --env-kwargs / --hyperparams value
         raise SystemExit(f"train.py: {exc}") from None
     chunk = rollout_steps(model)
@@ -125,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
               f"of {chunk:,} env steps, so the run takes {steps:,}")
     out.mkdir(parents=True, exist_ok=True)
 
-    callbacks = [run_progress_bar(steps)] if args.progress_bar else []
+    callbacks = [run_progress_bar(steps)] if args.progress_bar else [ProgressLines(steps, n_envs)]
     if args.eval_freq > 0:
         callbacks.append(EvalCallback(eval_env, n_eval_episodes=args.eval_episodes,
                                       eval_freq=max(args.eval_freq // n_envs, 1),
@@ -136,6 +208,20 @@ def main(argv: list[str] | None = None) -> int:
                                             save_path=str(out / "checkpoints"), name_prefix="model",
                                             save_vecnormalize=normalize))
 
+    if run.residual is not None and args.eval_freq > 0:
+        # the untrained residual policy is the PID: its evaluation is the curve's first point
+        from stable_baselines3.common.evaluation import evaluate_policy
+
+        from agents.training import sync_normalization
+
+        sync_normalization(env, eval_env)
+        rewards, lengths = evaluate_policy(model, eval_env, n_eval_episodes=args.eval_episodes,
+                                           deterministic=True, return_episode_rewards=True)
+        np.savez(out / "evaluation_at_start.npz", timesteps=[0], results=[rewards],
+                 ep_lengths=[lengths])
+        print(f"  at start (the PID): mean tracking error "
+              f"{-np.sum(rewards) / np.sum(lengths):.3f} deg over {len(rewards)} evaluation "
+              f"episodes", flush=True)
     started = time.time()
     # total_timesteps stays as requested: the learning-rate schedules are fractions of it
     model.learn(total_timesteps=n_timesteps, callback=callbacks, tb_log_name=args.algo)
@@ -156,11 +242,14 @@ def main(argv: list[str] | None = None) -> int:
     (out / "config.yml").write_text(yaml.safe_dump(record, sort_keys=False))
     trained = {k: record[k] for k in ("seed", "n_timesteps", "wall_time_s", "command", "versions")}
     export(model, out / "policy", args.algo, cfg["env_kwargs"], frame_stack, vecnorm, trained,
-           unit_actions)
+           unit_actions, args.env, run.residual)
+    curve = write_curve(out, record)
     if args.ship is not None:
         shipped = export(model, args.ship, args.algo, cfg["env_kwargs"], frame_stack, vecnorm,
-                         trained, unit_actions)
-        print(f"shipped {shipped} (+ .json)")
+                         trained, unit_actions, args.env, run.residual)
+        for src in curve:
+            shutil.copy(src, shipped.with_name(f"{shipped.stem}.{src.name}"))
+        print(f"shipped {shipped} (+ .json{', training curve' if curve else ''})")
     print(json.dumps({"out": str(out), "wall_time_s": round(wall, 1), "n_timesteps": n_timesteps}))
     shutil.rmtree(out / "tmp", ignore_errors=True)
     return 0

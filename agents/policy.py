@@ -33,9 +33,17 @@ def _algo_class(name: str):
 class DeployedPolicy:
     """Raw observation in, action out, for one env (call ``reset`` at each episode start)."""
 
-    def __init__(self, model, meta: dict[str, Any]):
+    def __init__(self, model, meta: dict[str, Any], env_kwargs: dict[str, Any] | None = None):
+        """``env_kwargs``: the task the policy runs in (a residual policy's PID models it:
+        budget, actuation); default the task it was trained in."""
         self.model = model
         self.meta = meta
+        self.residual = None
+        if meta.get("residual") is not None:
+            from agents.residual import PIDResidual
+
+            task_kwargs = dict(meta.get("env_kwargs", {})) if env_kwargs is None else dict(env_kwargs)
+            self.residual = PIDResidual(task_kwargs, 1, float(meta["residual"]["scale_A"]))
         self.frame_stack = int(meta.get("frame_stack", 1))
         norm = meta.get("obs_norm")
         if norm is not None:
@@ -51,7 +59,7 @@ class DeployedPolicy:
         return dict(self.meta.get("env_kwargs", {}))
 
     @classmethod
-    def load(cls, path: str | Path) -> "DeployedPolicy":
+    def load(cls, path: str | Path, env_kwargs: dict[str, Any] | None = None) -> "DeployedPolicy":
         path = Path(path)
         zip_path = path if path.suffix == ".zip" else path.with_suffix(".zip")
         meta_path = zip_path.with_suffix(".json")
@@ -64,8 +72,13 @@ class DeployedPolicy:
             raise ValueError(f"{meta_path}: not valid JSON ({exc})") from exc
         if "algo" not in meta:
             raise ValueError(f"{meta_path}: missing key 'algo'")
-        model = _algo_class(meta["algo"]).load(str(zip_path), device="cpu")
-        return cls(model, meta)
+        if str(meta["algo"]).upper() == "ARS":  # a linear residual (agents.ars): numpy weights
+            from agents.ars import LinearResidual
+
+            model = LinearResidual.load(zip_path)
+        else:
+            model = _algo_class(meta["algo"]).load(str(zip_path), device="cpu")
+        return cls(model, meta, env_kwargs)
 
     def _normalize(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=np.float64)
@@ -77,9 +90,15 @@ class DeployedPolicy:
         """Start an episode: the next ``act`` sees zeros for the frames before it (as SB3's
         frame stacking does after a reset)."""
         self._stack = None
+        if self.residual is not None:
+            self.residual.reset([0])
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Action for the latest observation (first call after ``reset``: the reset observation)."""
+        if self.residual is not None:
+            feat = self.residual.features(np.asarray(obs)[None])[0]
+            r, _ = self.model.predict(self._normalize(feat), deterministic=True)
+            return self.residual.actions(r[None])[0]
         frame = self._normalize(obs)
         if self._stack is None:
             self._stack = np.zeros(frame.size * self.frame_stack, dtype=np.float32)
@@ -96,7 +115,8 @@ class DeployedPolicy:
 
 def export(model, path: str | Path, algo: str, env_kwargs: dict[str, Any], frame_stack: int,
            vecnormalize=None, trained: dict[str, Any] | None = None,
-           unit_actions: bool = False) -> Path:
+           unit_actions: bool = False, env_id: str = "NeckTrack-v0",
+           residual: dict[str, Any] | None = None) -> Path:
     """Write ``path`` (.zip) and its .json so ``DeployedPolicy.load`` can use it."""
     zip_path = Path(path).with_suffix(".zip")
     zip_path.parent.mkdir(parents=True, exist_ok=True)
@@ -106,8 +126,10 @@ def export(model, path: str | Path, algo: str, env_kwargs: dict[str, Any], frame
         rms = vecnormalize.obs_rms
         norm = {"mean": rms.mean.tolist(), "var": rms.var.tolist(),
                 "clip": float(vecnormalize.clip_obs), "epsilon": float(vecnormalize.epsilon)}
-    meta = {"algo": algo.upper(), "env_id": "NeckTrack-v0", "env_kwargs": env_kwargs,
+    meta = {"algo": algo.upper(), "env_id": env_id, "env_kwargs": env_kwargs,
             "frame_stack": frame_stack, "unit_actions": unit_actions, "obs_norm": norm,
             "trained": trained or {}}
+    if residual is not None:
+        meta["residual"] = residual
     zip_path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
     return zip_path

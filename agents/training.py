@@ -19,7 +19,7 @@ import yaml
 ALGOS = ("ppo", "sac", "a2c", "td3")
 # Keys of a config block that configure the run, not the algorithm's constructor.
 RUN_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "frame_stack", "unit_actions",
-            "env_kwargs")
+            "env_kwargs", "residual")
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 
 
@@ -57,6 +57,8 @@ class RunSetup:
     frame_stack: int
     unit_actions: bool
     algo_kwargs: dict[str, Any]
+    # {"base": "pid", "scale_A": float}: residual RL on the PID (agents.residual), else None
+    residual: dict[str, Any] | None = None
 
     @property
     def gamma(self) -> float:
@@ -75,9 +77,19 @@ def resolve_config(cfg: dict[str, Any]) -> RunSetup:
         if isinstance(value, str) and value.startswith("lin_"):
             start = float(value[4:])
             algo_kwargs[key] = lambda progress_remaining, start=start: progress_remaining * start
+    residual = cfg.get("residual")
+    if residual is not None:
+        residual = dict(residual)
+        if residual.get("base", "pid") != "pid" or float(residual.get("scale_A", 0)) <= 0:
+            raise ValueError(f"residual must be {{base: pid, scale_A: > 0}}, got {residual}")
+        residual = {"base": "pid", "scale_A": float(residual["scale_A"]),
+                    "squared_error": bool(residual.get("squared_error", False))}
+        if cfg.get("frame_stack", 1) != 1 or cfg.get("unit_actions", False):
+            raise ValueError("a residual policy takes no frame_stack / unit_actions (its features "
+                             "carry the PID's state; its actions are the residual in [-1, 1])")
     return RunSetup(cfg, int(cfg["n_envs"]), int(float(cfg["n_timesteps"])),
                     bool(cfg.get("normalize", False)), int(cfg.get("frame_stack", 1)),
-                    bool(cfg.get("unit_actions", False)), algo_kwargs)
+                    bool(cfg.get("unit_actions", False)), algo_kwargs, residual)
 
 
 SB3_DEFAULT_GAMMA = 0.99  # every ALGOS class's default discount
@@ -85,14 +97,24 @@ SB3_DEFAULT_GAMMA = 0.99  # every ALGOS class's default discount
 
 def make_env(n_envs: int, seed: int, env_kwargs: dict[str, Any], normalize: bool,
              frame_stack: int, training: bool, unit_actions: bool,
-             gamma: float = SB3_DEFAULT_GAMMA):
+             gamma: float = SB3_DEFAULT_GAMMA, residual: dict[str, Any] | None = None):
     """The wrapped batched env; ``gamma``: the algorithm's discount, which VecNormalize's
-    reward scaling must use (its return estimate is discounted like the agent's)."""
+    reward scaling must use (its return estimate is discounted like the agent's);
+    ``residual``: the residual-on-PID env (``agents.residual``) instead of the plain one."""
     from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
 
     from agents.sb3_env import NeckTrackSB3VecEnv
 
-    venv = VecMonitor(NeckTrackSB3VecEnv(n_envs, seed=seed, unit_actions=unit_actions, **env_kwargs))
+    if residual is not None:
+        from agents.residual import make_residual_vec_env
+
+        # evaluation envs replay the same episodes at every evaluation, and report -e (deg)
+        inner = make_residual_vec_env(n_envs, seed, residual["scale_A"], env_kwargs,
+                                      reseed_every_reset=not training,
+                                      squared_error=training and residual["squared_error"])
+    else:
+        inner = NeckTrackSB3VecEnv(n_envs, seed=seed, unit_actions=unit_actions, **env_kwargs)
+    venv = VecMonitor(inner)
     if normalize:
         venv = VecNormalize(venv, training=training, norm_obs=True, norm_reward=training,
                             gamma=gamma)
@@ -111,12 +133,27 @@ def build_model(algo: str, run: RunSetup, seed: int, tensorboard_dir: Path | Non
         raise ValueError(f"unknown algorithm {algo!r}; known: {ALGOS}")
     set_random_seed(seed)
     env = make_env(run.n_envs, seed, run.cfg["env_kwargs"], run.normalize, run.frame_stack, True,
-                   run.unit_actions, run.gamma)
+                   run.unit_actions, run.gamma, run.residual)
     model = getattr(sb3, algo.upper())(
         run.cfg.get("policy", "MlpPolicy"), env, seed=seed, device="cpu", verbose=verbose,
         tensorboard_log=str(tensorboard_dir) if tensorboard_dir is not None else None,
         **run.algo_kwargs)
+    if run.residual is not None:
+        zero_mean_action(model)
     return model, env
+
+
+def zero_mean_action(model) -> None:
+    """Zero the layer that outputs the mean action: a residual policy then starts as the PID
+    (its mean correction is 0; exploration noise stays)."""
+    import torch
+
+    net = getattr(model.policy, "action_net", None)
+    if net is None:  # off-policy actors (SAC, TD3): the last linear layer of the actor's mu
+        net = [m for m in model.policy.actor.mu.modules() if isinstance(m, torch.nn.Linear)][-1]
+    with torch.no_grad():
+        net.weight.zero_()
+        net.bias.zero_()
 
 
 def vecnormalize_of(env, run: RunSetup):
@@ -136,3 +173,11 @@ def rollout_steps(model) -> int:
         return model.n_steps * model.n_envs
     tf = model.train_freq
     return model.n_envs * (tf.frequency if tf.unit.value == "step" else 1)
+
+
+def sync_normalization(train_env, eval_env) -> None:
+    """Give the evaluation env the training env's observation statistics (as SB3's
+    EvalCallback does before each evaluation)."""
+    from stable_baselines3.common.vec_env import sync_envs_normalization
+
+    sync_envs_normalization(train_env, eval_env)

@@ -30,6 +30,7 @@ from typing import Any, Mapping
 import numpy as np
 from gymnasium import spaces
 
+from .actuation import ACTUATIONS, max_equivalent_current_A
 from .observation import observation_space
 from .physics.compile import jit
 from .physics.plant import budget_energy_scale, over_temperature
@@ -72,10 +73,15 @@ class Task:
     supply_current_A: float = DEFAULT_SUPPLY_A  # what an "on" relay passes
     cutoff_C: float = DEFAULT_CUTOFF_C  # a muscle's current is cut while its spring is hotter
     targets: TargetSpec = field(default_factory=TargetSpec)
+    # what reaches the springs: "ideal" (the command, steadily) or "firmware" (what the rig's
+    # firmware makes of it: duty windows, 80 % cap, on-time cap; neck_env.actuation)
+    actuation: str = "ideal"
 
     def __post_init__(self) -> None:
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
+        if self.actuation not in ACTUATIONS:
+            raise ValueError(f"actuation must be one of {ACTUATIONS}, got {self.actuation!r}")
         if not (_is_number(self.dt) and 0.001 <= self.dt <= 1.0):
             raise ValueError(f"dt = {self.dt!r}: must be a number of seconds in [0.001, 1]")
         if not (_is_number(self.episode_s) and self.dt <= self.episode_s < 1e6):
@@ -142,8 +148,13 @@ class Task:
 
     @property
     def max_current_A(self) -> float:
-        """Largest current an action can make flow."""
-        return self.supply_current_A if self.action_mode == "relay" else MAX_CURRENT_A
+        """Largest (steady-equivalent) current an action can make flow: the supply in relay
+        mode; 8 A in current mode, or through the firmware the duty cap's ``sqrt(0.8) I_s``."""
+        if self.action_mode == "relay":
+            return self.supply_current_A
+        if self.actuation == "firmware":
+            return min(MAX_CURRENT_A, max_equivalent_current_A(self.supply_current_A))
+        return MAX_CURRENT_A
 
     # -- actions ---------------------------------------------------------------------------
     def currents_A(self, action, num_envs: int | None = None) -> np.ndarray:

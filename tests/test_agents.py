@@ -159,15 +159,20 @@ def read_rows(path):
 
 def test_benchmark_numbers_are_recomputable_from_its_csv(tmp_path, capsys):
     rc = benchmark.main(["--controllers", "zero,pid,bang_bang", "--episodes", "2",
-                         "--episode-s", "6", "--out-dir", str(tmp_path), "--no-plot"])
+                         "--episode-s", "6", "--out-dir", str(tmp_path), "--no-plot",
+                         "--action-mode", "current"])
     assert rc == 0
     rows = read_rows(tmp_path / "benchmark.csv")
     assert tuple(rows[0]) == benchmark.CSV_COLUMNS
+    assert {r["suite"] for r in rows} == set(benchmark.SUITES)
     data = json.loads((tmp_path / "benchmark.json").read_text())
     by_name = {c["name"]: c for c in data["controllers"]}
+    assert data["suite"]["env_id"] == "NeckTrack-v1"
+    v1 = dict(neck_env.V1_KWARGS, episode_s=6.0)
     for name in ("zero", "pid", "bang_bang"):
-        eps = [r for r in rows if r["controller"] == name and r["episode"] != "all"]
-        (agg,) = [r for r in rows if r["controller"] == name and r["episode"] == "all"]
+        nominal = [r for r in rows if r["controller"] == name and r["suite"] == "nominal"]
+        eps = [r for r in nominal if r["episode"] != "all"]
+        (agg,) = [r for r in nominal if r["episode"] == "all"]
         assert [int(r["seed"]) for r in eps] == [1000, 1001]
         n = np.array([float(r["steps"]) for r in eps])
         f = lambda k: np.array([float(r[k]) for r in eps])
@@ -181,8 +186,8 @@ def test_benchmark_numbers_are_recomputable_from_its_csv(tmp_path, capsys):
         assert by_name[name]["rmse_deg"] == pytest.approx(float(agg["rmse_deg"]))
         assert by_name[name]["energy_J"] == pytest.approx(float(agg["energy_J"]))
         # ... and the episode rows are what the env reports when the episode is re-run
-        ctrl = make_controller(name, {"episode_s": 6.0})
-        env = NeckTrackEnv(episode_s=6.0)
+        ctrl = make_controller(name, v1)
+        env = NeckTrackEnv(**v1)
         obs, _ = env.reset(seed=1001)
         ctrl.reset(1001)
         err = []
@@ -202,7 +207,11 @@ def test_quick_benchmark_json_contract_and_plot(tmp_path, capsys):
                          "--policy-dir", str(tmp_path / "no_policies_here")])
     assert rc == 0
     data = json.loads(out_json.read_text())
-    assert {c["name"] for c in data["controllers"]} == {"zero", "open_loop", "mpc"}
+    # both action modes by default; the MPC in current mode only
+    assert {c["name"] for c in data["controllers"]} == {"zero", "open_loop", "mpc", "zero@relay",
+                                                         "open_loop@relay"}
+    assert set(data["suites"]) == set(benchmark.SUITES)
+    assert "mpc" not in {c["name"] for c in data["suites"]["randomized"]["controllers"]}
     for c in data["controllers"]:
         assert {"name", "kind", "rmse_deg", "energy_J", "budget_exhausted"} <= set(c)
         assert c["kind"] in ("heuristic", "model-based", "learned")
@@ -226,7 +235,7 @@ def test_benchmark_runs_a_saved_policy(tmp_path):
                     "--json", str(out_json), "--out-dir", str(tmp_path), "--no-plot"])
     data = json.loads(out_json.read_text())
     kinds = {c["name"]: c["kind"] for c in data["controllers"]}
-    assert kinds == {"zero": "heuristic", "tiny": "learned"}
+    assert kinds == {"zero": "heuristic", "zero@relay": "heuristic", "tiny": "learned"}
     assert any("orphan.zip" in n for n in data["notes"])
 
 
@@ -240,3 +249,45 @@ def test_shipped_policy_is_benchmarked_by_default(tmp_path):
     assert kinds.get("ppo_necktrack") == "learned"
     c = next(c for c in data["controllers"] if c["name"] == "ppo_necktrack")
     assert math.isfinite(c["rmse_deg"]) and c["energy_J"] > 0.0
+
+
+def _fake_result(name, kind, rmses, mode="current"):
+    ag = benchmark.Agent(name, kind, {"action_mode": mode}, lambda s: None, lambda o: o)
+    rows = [{"rmse_deg": float(x), "steps": 10} for x in rmses]
+    return {"agent": ag, "rows": rows,
+            "aggregate": {"rmse_deg": float(np.sqrt(np.mean(np.square(rmses))))}}
+
+
+def test_paired_bootstrap_interval_against_the_best_heuristic():
+    rng = np.random.default_rng(0)
+    base = rng.uniform(4, 9, 30)  # episode difficulty, shared by every controller
+    res = [_fake_result("pid", "heuristic", base),
+           _fake_result("bang_bang", "heuristic", base + 0.5),
+           _fake_result("better", "learned", base - 0.3 + rng.normal(0, 0.1, 30)),
+           _fake_result("same", "learned", base + rng.normal(0, 0.3, 30)),
+           _fake_result("pid@relay", "heuristic", base + 1.0, "relay")]
+    refs = benchmark.paired_vs_best_heuristic(res)
+    assert refs == {"current": "pid", "relay": "pid@relay"}
+    by = {r["agent"].name: r["paired"] for r in res}
+    lo, hi = by["better"]["ci95_deg"]
+    assert hi < 0 and lo < by["better"]["mean_diff_deg"] < hi
+    assert by["better"]["mean_diff_deg"] == pytest.approx(np.mean(
+        [a["rmse_deg"] - b["rmse_deg"] for a, b in zip(res[2]["rows"], res[0]["rows"])]))
+    lo, hi = by["same"]["ci95_deg"]
+    assert lo < 0 < hi  # no real difference: the interval covers zero
+    assert by["bang_bang"]["ci95_deg"] == [0.5, 0.5] or by["bang_bang"]["ci95_deg"][0] == pytest.approx(0.5)
+    assert by["pid"]["mean_diff_deg"] == 0.0
+    # the paired interval is much narrower than the spread of the episodes themselves
+    assert hi - lo < np.std(base) / 2
+
+
+def test_suites_randomize_the_plant_and_cycle_the_effects():
+    assert benchmark.suite_overrides("nominal", 3) == {}
+    assert benchmark.suite_overrides("randomized", 3) == {"randomize": True}
+    names = [benchmark.suite_overrides("effects", i)["effects"][0] for i in range(12)]
+    assert names[:10] == list(benchmark.EFFECT_NAMES) and names[10:] == names[:2]
+    kw = benchmark.suite_env_kwargs(5.0, 900.0, "current", "firmware")
+    ag = benchmark.controller_agent("pid", kw)
+    (nom,), (rnd,), (eff,) = (benchmark.run_episodes([ag], [1000], suite=s)[0]
+                              for s in benchmark.SUITES)
+    assert not np.allclose(nom.err, rnd.err) and not np.allclose(nom.err, eff.err)

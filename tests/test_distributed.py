@@ -215,7 +215,7 @@ def test_benchmark_episodes_on_two_nodes_equal_local(cluster, tmp_path):
     def table(d):
         return [{k: v for k, v in r.items() if k != "wall_s"} for r in _rows(d / "benchmark.csv")]
 
-    assert table(tmp_path / "ray") == table(tmp_path / "local") and len(table(tmp_path / "local")) == 6
+    assert table(tmp_path / "ray") == table(tmp_path / "local") and len(table(tmp_path / "local")) == 36  # 3 suites x 2 modes x 2 controllers x (2 episodes + all)
 
 
 @requires_ray

@@ -107,3 +107,53 @@ def test_vecnormalize_discounts_like_the_agent_and_rollouts_round_up():
     assert rollout_steps(model) == 128  # n_steps x n_envs: learn(100) takes 128 steps
     model.learn(100)
     assert model.num_timesteps == 128
+
+
+def test_residual_policy_starts_as_the_pid_and_round_trips(tmp_path):
+    """A residual-on-PID model (agents.residual) with its zeroed last layer acts exactly as the
+    PID through DeployedPolicy (the deployed features and combination are the training env's);
+    a few PPO updates move it; the export carries the residual."""
+    import neck_env
+    from agents.controllers import make_controller
+    from agents.policy import DeployedPolicy, export
+    from agents.training import build_model, resolve_config, vecnormalize_of
+    from neck_env.envs import NeckTrackEnv
+
+    kw = dict(neck_env.V1_KWARGS, episode_s=3.0)
+    run = resolve_config({"n_envs": 2, "n_timesteps": 256, "normalize": True,
+                          "residual": {"base": "pid", "scale_A": 3.0}, "env_kwargs": kw,
+                          "n_steps": 64, "batch_size": 64, "n_epochs": 1, "use_sde": True,
+                          "policy_kwargs": "dict(log_std_init=-2.0)"})
+    model, env = build_model("ppo", run, 0, None)
+    assert env.observation_space.shape == (14,)
+    path = export(model, tmp_path / "res", "ppo", kw, 1, vecnormalize_of(env, run), None, False,
+                  "NeckTrack-v1", run.residual)
+    pol = DeployedPolicy.load(path)
+    assert pol.meta["residual"] == {"base": "pid", "scale_A": 3.0, "squared_error": False}
+    e1, e2, pid = NeckTrackEnv(**kw), NeckTrackEnv(**kw), make_controller("pid", kw)
+    (o1, _), (o2, _) = e1.reset(seed=4), e2.reset(seed=4)
+    pid.reset(), pol.reset()
+    for _ in range(e1.task.episode_steps):
+        a1, a2 = pid.act(o1), pol.act(o2)
+        np.testing.assert_array_equal(a1, a2)
+        o1, *_ = e1.step(a1)
+        o2, *_ = e2.step(a2)
+    assert float(model.policy.action_net.weight.abs().max()) == 0.0
+    model.learn(256)
+    assert float(model.policy.action_net.weight.abs().max()) > 0.0  # trained: no longer the PID
+
+
+def test_residual_relay_policy_outputs_relay_states():
+    from agents.residual import PIDResidual
+
+    base = PIDResidual({"action_mode": "relay", "actuation": "firmware"}, 2, 3.0)
+    obs = np.zeros((2, 8), np.float32)
+    obs[:, 2:5] = 25.0
+    obs[:, 5] = 15.0  # target 15 deg toward muscle 1's side
+    obs[:, 7] = 1.0
+    base.features(obs)
+    acts = [base.actions(np.array([[1.0, -1, -1], [-1.0, -1, -1]])) for _ in range(10)]
+    acts = np.array(acts)
+    assert acts.dtype == np.int8 and set(np.unique(acts)) <= {0, 1}
+    # +3 A on muscle 0 in env 0 vs -3 A in env 1: more on-steps
+    assert acts[:, 0, 0].sum() > acts[:, 1, 0].sum()

@@ -22,6 +22,7 @@ from numba import prange
 from .. import effects as fx
 from ..observation import OBS_DIM, fill_observation
 from ..params import NeckParams, resolve_params  # noqa: F401  (resolve_params: re-exported)
+from ..actuation import FIRMWARE, FW_STATE_DIM, firmware_step
 from ..physics import layout as L
 from ..physics.compile import jit
 from ..physics.plant import (PARALLEL_CHUNK, PARALLEL_FROM, advance_rig, constants_from_params,
@@ -106,14 +107,20 @@ A_DELAY = 20  # actuation delay, steps
 A_NSEG = 21  # target segments in use
 A_TTHETA = 22  # target theta, deg
 A_TPHI = 23  # target phi, deg in [0, 360)
-N_AUX = 24
+A_FWPHASE = 24  # actuation "firmware": the firmware clock at the episode start, ms
+N_AUX = 25
 
 
 @jit
 def _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget, a_sig,
-          g_sig, T_sig, physics, first, start, stop):
-    """Advance (if ``physics``) and observe envs start..stop. One compiled pass per env."""
+          g_sig, T_sig, physics, first, fw, fw_lim, fw_relay, supply_A, start, stop):
+    """Advance (if ``physics``) and observe envs start..stop. One compiled pass per env.
+    ``fw`` (N, 3, FW_STATE_DIM) is the firmware state (actuation "firmware"; shape (0, 3, ..)
+    for "ideal")."""
     scratch = rig_scratch()
+    command = np.empty(3)
+    step_ms = int(round(dt * 1000.0))
+    firmware = fw.shape[0] > 0
     # the IMU's kinematics scratch is the plant's (both recompute it before use)
     sense = (scratch[0], scratch[1], scratch[2], np.empty(3), np.empty(3), np.empty(6))
     applied, meas = np.empty(3), np.empty(5)
@@ -125,14 +132,23 @@ def _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, bud
         if physics:
             d = int(a[A_DELAY])
             tix = int(a[A_TIDX])
+            for k in range(3):
+                command[k] = cur[i, k]
+            if firmware:
+                # the host's over-temperature cut (HardwareNeckEnv.step), then the firmware
+                for k in range(3):
+                    if xi_row[L.S_T + k] >= c[L.CUTOFF_C]:
+                        command[k] = 0.0
+                firmware_step(fw[i], a[A_FWPHASE] + tix * step_ms, command, fw_relay,
+                              supply_A, step_ms, fw_lim, command)
             if d > 0:
                 depth = delay_buf.shape[1]
                 for k in range(3):
-                    delay_buf[i, tix % depth, k] = cur[i, k]
+                    delay_buf[i, tix % depth, k] = command[k]
                     applied[k] = delay_buf[i, (tix - d) % depth, k] if tix >= d else 0.0
             else:
                 for k in range(3):
-                    applied[k] = cur[i, k]
+                    applied[k] = command[k]
             for k in range(3):
                 a[A_QPREV + k] = xi_row[L.S_Q + k]
             a[A_LEFT] = advance_rig(c, xi_row, applied, dt, 1, a[A_LEFT], out[i], scratch)
@@ -166,12 +182,13 @@ def _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, bud
 
 @jit(parallel=True)
 def _rows_parallel(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget,
-                   a_sig, g_sig, T_sig, physics, first):
+                   a_sig, g_sig, T_sig, physics, first, fw, fw_lim, fw_relay, supply_A):
     n = x.shape[0]
     chunks = (n + PARALLEL_CHUNK - 1) // PARALLEL_CHUNK
     for ch in prange(chunks):
         _rows(consts, x, aux, out, rng, mount, targets, obs, cur, delay_buf, dt, budget, a_sig,
-              g_sig, T_sig, physics, first, ch * PARALLEL_CHUNK, min(n, (ch + 1) * PARALLEL_CHUNK))
+              g_sig, T_sig, physics, first, fw, fw_lim, fw_relay, supply_A, ch * PARALLEL_CHUNK,
+              min(n, (ch + 1) * PARALLEL_CHUNK))
 
 
 class NeckTrackCore:
@@ -203,6 +220,9 @@ class NeckTrackCore:
         self.delay_buffer = np.zeros((n, 1, 3))
         self.obs = np.zeros((n, OBS_DIM), dtype=np.float32)
         self.episode_effects: list[dict[str, dict[str, float]]] = [{} for _ in range(n)]
+        self.firmware = task.actuation == "firmware"
+        self.fw_state = np.zeros((n if self.firmware else 0, 3, FW_STATE_DIM))
+        self._fw_lim = FIRMWARE.as_array()
         self.generators = [np.random.default_rng() for _ in range(n)]
         self._budget = float(task.energy_budget_J)
         self._episode_steps = task.episode_steps
@@ -241,6 +261,11 @@ class NeckTrackCore:
             a[A_ABIAS:A_ABIAS + 3] = g.normal(0.0, s.accel_bias_g, 3) if s.accel_bias_g > 0 else 0.0
             a[A_GBIAS:A_GBIAS + 3] = g.normal(0.0, s.gyro_bias_dps, 3) if s.gyro_bias_dps > 0 else 0.0
             self.rng_stream[i] = np.uint64(g.integers(0, 2**63))
+            if self.firmware:
+                # where in its duty window the firmware's clock is when the episode starts
+                # (drawn last: "ideal" envs keep v0's streams)
+                a[A_FWPHASE] = float(g.integers(0, FIRMWARE.duty_window_ms))
+                self.fw_state[i] = 0.0
         ids = np.asarray(ids, dtype=np.int64)
         self.x[ids] = initial_state(self.consts[ids])
         self.out[ids] = 0.0
@@ -265,7 +290,9 @@ class NeckTrackCore:
         consts = self.consts[:1] if self._shared_consts else self.consts
         args = (consts, self.x, self.aux, self.out, self.rng_stream, self.mount,
                 self.targets, self.obs, cur, self.delay_buffer, self.task.dt, self._budget,
-                s.accel_noise_g, s.gyro_noise_dps, s.temperature_noise_C, physics, first)
+                s.accel_noise_g, s.gyro_noise_dps, s.temperature_noise_C, physics, first,
+                self.fw_state, self._fw_lim, self.task.action_mode == "relay",
+                self.task.supply_current_A)
         if rows is not None:
             _rows(*args, rows[0], rows[1])
         elif self._parallel:

@@ -97,6 +97,13 @@ class HardwareNeckEnv(gym.Env):
     | `"current"` (default) | `Box(0, 8, (3,), float32)`, A | per-muscle duty `(I / I_s)^2` of the supply current `I_s` (time-proportional switching in the firmware, 1 s window): the same mean Joule heat as a steady `I`. The firmware caps duty at 80 %, so the largest steady-equivalent current is `0.89 I_s` |
     | `"relay"` | `MultiBinary(3)` | relay k on: `I_s` flows (firmware caps: 10 s continuous on-time, sustained-duty limiter) |
 
+    **Which simulation matches the rig:** `actuation="firmware"` (``neck_env.actuation``; the
+    default of ``NeckTrack-v1``) simulates exactly this: the duty command, the firmware's 1 s
+    windows and 80 % cap, and its on-time cap and sustained-duty limiter in relay mode. A policy
+    trained with `actuation="ideal"` (``NeckTrack-v0``) assumed steady currents up to 8 A that
+    the rig does not deliver. The rig does the same whatever the task's `actuation` says
+    (``HardwareNeckEnv.ACTUATION``).
+
     Actions are checked, clipped and scaled by the same `neck_env.task.Task` as in simulation;
     invalid ones (NaN/inf, wrong shape, relay values other than 0/1) raise `ValueError` after the
     relays are commanded off.
@@ -168,6 +175,8 @@ class HardwareNeckEnv(gym.Env):
     """
 
     metadata = {"render_modes": []}
+    #: the simulated actuation (``Task.actuation``) that matches what this env does
+    ACTUATION = "firmware"
 
     def __init__(self, port: str | None = None, *, link: RigLink | None = None,
                  task: Task | None = None, params: NeckParams | str | None = None,
