@@ -2,22 +2,29 @@
 
 ``diagnose(dataset) -> Diagnosis`` runs, in order:
 
-1. **Split**: about a third of the recordings are held out from fitting (spread over the
-   dataset's time order, the fitting set keeping every muscle used); with a single recording its
-   last 40 % is held out.
-2. **Nominal refit**: the calibrated model's free parameters (``model.nominal_specs``) refitted
-   to the fitting recordings (bounded robust least squares, ``fit.Fitter``).
-3. **Attribution**: for every catalogued effect, nominal + effect parameters refitted on the
-   same recordings (started from a batched scan of the effect's range), all candidates in
-   lockstep; the gap (RMSE of theta and weighted phi) measured on the held-out recordings.
-4. **Decision**: an effect is responsible when its held-out gap beats the nominal refit's by a
-   held-out significance test (paired over 5 s blocks of the held-out recordings, t >
-   ``T_CRIT``) *and* by a practical margin (``MIN_REL``, ``MIN_ABS_DEG``). Pairs of the best
-   singles are tried when one effect leaves a large residual or two are significant; a pair
-   wins only when it beats its best single by the same test.
-5. **Final model** (nominal + verdict) refitted on all recordings; parameter uncertainties and
-   identifiability from its Jacobian; localization of the nominal and of the remaining residual;
-   ``unexplained`` when a large systematic residual remains (``UNEXPLAINED_*``).
+1. **Split** (``choose_holdout``): about a third of the recordings are held out from fitting
+   (spread over the dataset's time order, the fitting set keeping every muscle used); with a
+   single recording its last 40 % is held out.
+2. **Baseline** (``_calibrate``): this rig's baseline (``model.nominal_specs``) fitted to the
+   fitting recordings -- a Latin-hypercube scan, then lockstep Levenberg-Marquardt from the
+   defaults and the best scan points (``fit_baseline``); a reading at rest that drifts through
+   the dataset is taken out as a nuisance.
+3. **Attribution** (``_attribute``): for every catalogued effect and every generic structural
+   discrepancy (``model.STRUCTURE``), the baseline + it refitted on the same recordings (effects
+   started from a batched scan of their range), all in lockstep; each compared on the held-out
+   recordings with the baseline (``compare`` -> ``Comparison``).
+4. **Decision** (``_decide``): an effect is responsible (``responsible``) when it removes at
+   least ``MIN_REL`` and ``MIN_ABS_DEG`` of the held-out gap and passes a test -- the F test
+   with a consistent improvement, or the paired test (every held-out recording improved and the
+   5 s block t > ``T_CRIT``; ``significant``) -- and beats the best structural discrepancy
+   (``beats_structure``: by the same test when that discrepancy is itself significant, else by
+   the margin). Then a second effect on top of the first; with none responsible but a large
+   systematic gap, pairs of the best singles; and effects ``ambiguous`` with a baseline shift.
+5. **Conclusion** (``_conclude``): the final model (baseline + verdict) refitted on all
+   recordings; parameter uncertainties and identifiability from its Jacobian; localization of
+   the nominal and of the remaining residual; ``unexplained`` when a large systematic residual
+   remains, the reading at rest moves between recordings, or a structural discrepancy explains
+   what no effect does (``Remaining``).
 """
 
 from __future__ import annotations
