@@ -91,79 +91,28 @@ def make_residual_vec_env(num_envs: int, seed: int | None, scale_A: float,
     ``squared_error``: reward -e^2 / 10 (e in deg) instead of the env's -e: the benchmark ranks
     by RMSE, whose square is the mean of e^2, so this reward is what it scores (the large errors
     after a target step weigh more than a steady 1 deg)."""
-    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+    from .sb3_env import NeckTrackSB3VecEnv
 
-    from neck_env.envs import NeckTrackVectorEnv
-
-    class ResidualVecEnv(VecEnv):
+    class ResidualVecEnv(NeckTrackSB3VecEnv):
         """SB3 VecEnv: observations are the residual features, actions the residual in [-1, 1]."""
 
         def __init__(self) -> None:
-            self.venv = NeckTrackVectorEnv(num_envs=num_envs, **dict(env_kwargs))
-            self.task = self.venv.task
+            super().__init__(num_envs, seed=seed, **dict(env_kwargs))
             self.base = PIDResidual(env_kwargs, num_envs, scale_A)
-            super().__init__(num_envs, feature_space(),
-                             spaces.Box(-1.0, 1.0, (3,), dtype=np.float32))
-            self._seed = seed
-            self._actions = None
-            self._feat = None
+            self.observation_space = feature_space()
+            self.action_space = spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
+            self.reseed_every_reset = reseed_every_reset
 
-        def reset(self):
-            obs, _ = self.venv.reset(seed=self._seed)
-            if not reseed_every_reset:
-                self._seed = None
-            self.base.reset(range(self.num_envs))
-            self._feat = self.base.features(obs)
-            return self._feat.copy()
+        def _env_actions(self, actions):
+            return self.base.actions(actions)
 
-        def step_async(self, actions):
-            self._actions = actions
+        def _observe(self, obs, ids=None):
+            return self.base.features(obs, ids)  # runs the PIDs: once per observation
 
-        def step_wait(self):
-            core = self.venv.core
-            core.step(self.task.currents_A(self.base.actions(self._actions), self.num_envs))
-            obs = core.obs.copy()
-            rewards = (-core.err ** 2 / 10.0 if squared_error else core.reward).astype(np.float32)
-            dones = core.truncated.copy()
-            infos: list[dict[str, Any]] = [{"tracking_error_deg": float(e)} for e in core.err]
-            feat = self.base.features(obs)
-            if dones.any():
-                ids = np.nonzero(dones)[0]
-                for i in ids:
-                    infos[i]["terminal_observation"] = feat[i].copy()
-                    infos[i]["TimeLimit.truncated"] = True
-                    infos[i]["energy_J"] = float(core.energy_used[i])
-                core.reset(ids, None)
-                self.base.reset(ids)
-                feat[ids] = self.base.features(core.obs, ids)[ids]
-            self._feat = feat
-            return feat.copy(), rewards, dones, infos
+        def _rewards(self, core):
+            return (-core.err ** 2 / 10.0 if squared_error else core.reward).astype(np.float32)
 
-        def close(self):
-            self.venv.close()
-
-        def get_attr(self, attr_name, indices=None):
-            return [getattr(self.venv, attr_name) for _ in self._idx(indices)]
-
-        def set_attr(self, attr_name, value, indices=None):
-            setattr(self.venv, attr_name, value)
-
-        def env_method(self, method_name, *args, indices=None, **kwargs):
-            return [getattr(self.venv, method_name)(*args, **kwargs) for _ in self._idx(indices)]
-
-        def env_is_wrapped(self, wrapper_class, indices=None):
-            return [False for _ in self._idx(indices)]
-
-        def seed(self, seed=None):
-            self._seed = seed
-            return [None] * self.num_envs
-
-        def get_images(self):
-            return [self.venv.render()]
-
-        def _idx(self, indices):
-            if indices is None:
-                return range(self.num_envs)
-            return [indices] if isinstance(indices, int) else indices
+        def _reset_envs(self, ids):
+            self.base.reset(ids)
 
     return ResidualVecEnv()

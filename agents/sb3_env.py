@@ -35,23 +35,24 @@ class NeckTrackSB3VecEnv(VecEnv):
         super().__init__(num_envs, self.venv.single_observation_space, action_space)
         self._seed = seed
         self._actions: np.ndarray | None = None
+        # an evaluation env starts every reset() from ``seed`` again (same episodes each time)
+        self.reseed_every_reset = False
 
     def reset(self) -> np.ndarray:
         obs, _ = self.venv.reset(seed=self._seed)
-        self._seed = None  # later resets continue each sub-env's own stream
-        return obs
+        if not self.reseed_every_reset:
+            self._seed = None  # later resets continue each sub-env's own stream
+        self._reset_envs(range(self.num_envs))
+        return self._observe(obs)
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = actions
 
     def step_wait(self):
         core = self.venv.core
-        actions = self._actions
-        if self.unit_actions:
-            actions = unit_to_current(actions)
-        core.step(self.task.currents_A(actions, self.num_envs))
-        obs = core.obs.copy()
-        rewards = core.reward.astype(np.float32)
+        core.step(self.task.currents_A(self._env_actions(self._actions), self.num_envs))
+        obs = self._observe(core.obs.copy())
+        rewards = self._rewards(core)
         dones = core.truncated.copy()
         err = core.err
         infos: list[dict[str, Any]] = [{"tracking_error_deg": float(e)} for e in err]
@@ -62,8 +63,23 @@ class NeckTrackSB3VecEnv(VecEnv):
                 infos[i]["TimeLimit.truncated"] = True
                 infos[i]["energy_J"] = float(core.energy_used[i])
             core.reset(ids, None)
-            obs[ids] = core.obs[ids]
+            self._reset_envs(ids)
+            obs[ids] = self._observe(core.obs, ids)[ids]
         return obs, rewards, dones, infos
+
+    # What a view on top of the env changes (agents.residual): actions, observations, reward.
+    def _env_actions(self, actions: np.ndarray) -> np.ndarray:
+        return unit_to_current(actions) if self.unit_actions else actions
+
+    def _observe(self, obs: np.ndarray, ids: Sequence[int] | None = None) -> np.ndarray:
+        """The agent's observations from the env's (N, 8); ``ids``: only those envs are new."""
+        return obs
+
+    def _rewards(self, core) -> np.ndarray:
+        return core.reward.astype(np.float32)
+
+    def _reset_envs(self, ids: Sequence[int]) -> None:
+        """Envs ``ids`` start a new episode (before their first observation)."""
 
     def close(self) -> None:
         self.venv.close()

@@ -113,7 +113,9 @@ def firmware_step(state, clock_ms, cmd_A, relay, supply_A, step_ms, lim, out_A):
     # muscles_update once per ms of the step, the first right after the command (the pins
     # switch before the ACK); each integrates the 1 ms since the previous pass, and the output
     # it sets holds over [t, t + 1) ms.
-    on_ms = np.zeros(3)
+    # on-time per muscle is counted in out_A (no allocation per rig and step in the hot loop)
+    for k in range(3):
+        out_A[k] = 0.0
     n = int(step_ms)
     dt = 1.0
     for tick in range(n):
@@ -146,7 +148,7 @@ def firmware_step(state, clock_ms, cmd_A, relay, supply_A, step_ms, lim, out_A):
                 state[k, FW_ON_SINCE] = now
             state[k, FW_ON] = 1.0 if want else 0.0
             if want:
-                on_ms[k] += 1.0
+                out_A[k] += 1.0
     for k in range(3):
-        out_A[k] = supply_A * np.sqrt(on_ms[k] / max(n, 1))
+        out_A[k] = supply_A * np.sqrt(out_A[k] / max(n, 1))
     return refused

@@ -669,6 +669,7 @@ class _Attribution:
     nulls: list[Candidate]
     null_cmp: dict[str, Comparison]
     best_null: Candidate | None
+    rival: bool  # the best null is itself a significant improvement on the nominal refit
 
 
 @dataclass
@@ -746,8 +747,8 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
         s = null_cmp[c.name]
         say(f"  {c.name:26s} held-out gap {s.gap_before_deg:.3f} -> {s.gap_after_deg:.3f} deg "
             f"({100 * s.reduction:+.0f} %)  [generic structural discrepancy]")
+    rival = best_null is not None and significant(null_cmp[best_null.name])
     if best_null is not None:
-        rival = significant(null_cmp[best_null.name])
         single_cmp = {c.name: replace(single_cmp[c.name],
                                       vs_structure=compare(data, best_null.pred, c.pred, hold_mask),
                                       structure_significant=rival)
@@ -759,7 +760,7 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
             f"({100 * s.reduction:+.0f} %, F = {s.F:.2f} > {s.F_crit:.2f}?, t = {s.t:.1f})"
             f"{'  *' if significant(s) else ''}")
     return _Attribution(singles=singles, single_cmp=single_cmp, nulls=nulls, null_cmp=null_cmp,
-                        best_null=best_null)
+                        best_null=best_null, rival=rival)
 
 
 def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
@@ -787,7 +788,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         single = verdict_c
         pair_cmp = _fit_and_judge_pairs(fitter, data, pairs, lambda p: single, nominal,
                                         run.hold_rec, run.hold_mask, run.max_iter, significant,
-                                        best_null)
+                                        best_null, att.rival)
         for p in pairs[:PAIR_TOP]:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s.gap_before_deg:.3f} -> "
@@ -812,7 +813,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
                                key=lambda c: single_cmp[c.name].gap_after_deg)
         pair_cmp = _fit_and_judge_pairs(
             fitter, data, pairs, better, nominal, run.hold_rec, run.hold_mask, run.max_iter,
-            lambda s: significant(s.vs_nominal) and s.F > s.F_crit, best_null)
+            lambda s: significant(s.vs_nominal) and s.F > s.F_crit, best_null, att.rival)
         for p in pairs:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s.vs_nominal.gap_before_deg:.3f} -> "
@@ -880,7 +881,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
             reasons.append(f"the tilt read at rest {what}; no catalogued effect moves the rest "
                            f"reading from recording to recording")
     best_null = att.best_null
-    if best_null is not None and not verdict and significant(att.null_cmp[best_null.name]):
+    if att.rival and not verdict:
         nc = att.null_cmp[best_null.name]
         reasons.append(f"a generic structural discrepancy ({best_null.name.split(':', 1)[1]}) "
                        f"removes {100 * nc.reduction:.0f} % of the held-out gap, more than any "
@@ -902,16 +903,15 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,
                          nominal: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray,
-                         max_iter: int, accept, best_null: Candidate | None = None
-                         ) -> dict[str, Comparison]:
+                         max_iter: int, accept, best_null: Candidate | None = None,
+                         rival: bool = False) -> dict[str, Comparison]:
     """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)`` and
-    with the nominal refit (``vs_nominal``), mark ``accepted`` by ``accept(comparison)``;
-    sorts ``pairs`` best first and returns the comparisons by name."""
+    with the nominal refit (``vs_nominal``), mark ``accepted`` by ``accept(comparison)`` and
+    ``beats_structure`` (``rival``: the best null is itself significant); sorts ``pairs`` best
+    first and returns the comparisons by name."""
     fitter.run(pairs, max_iter=max_iter)
     for p in pairs:
         settle_draft(fitter.model, p, hold_rec, hold_mask)
-    rival = (best_null is not None
-             and significant(compare(data, nominal.pred, best_null.pred, hold_mask)))
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         c = replace(compare(data, reference(p).pred, p.pred, hold_mask),

@@ -632,13 +632,17 @@ class Model:
         R = d.n_rec
         out = []
         col = d.fit_rec
+        temps: dict[tuple, np.ndarray] = {}  # settings sharing a plant run and a lag share these
         for s in settings:
             u = uniq[self.plant_key(s)]
             rig = u * R + col
             w = d.fit_w[:, None]
             qs = (1 - w) * q[d.grid_pos0, rig] + w * q[d.grid_pos1, rig]
-            Tu = lagged(T[:, u * R:(u + 1) * R], d.grid_steps * FIT_SIM_DT_S, s)
-            Ts = (1 - w) * Tu[d.grid_pos0, col] + w * Tu[d.grid_pos1, col]
+            key = (u, float(s.get("thermistor_lag_s", 0.0)))
+            if key not in temps:
+                Tu = lagged(T[:, u * R:(u + 1) * R], d.grid_steps * FIT_SIM_DT_S, s)
+                temps[key] = (1 - w) * Tu[d.grid_pos0, col] + w * Tu[d.grid_pos1, col]
+            Ts = temps[key]
             tx, ty = imu_tilt(qs, self.mount_of(s))
             tx = tx + float(s.get("offset_x_deg", 0.0)) + drift_offset(s, "x", self.fit_tcum)
             ty = ty + float(s.get("offset_y_deg", 0.0)) + drift_offset(s, "y", self.fit_tcum)

@@ -236,3 +236,31 @@ def closed_loop(fw_binaries) -> Iterator[Callable[..., tuple]]:
     yield start
     for stop in reversed(made):
         stop()
+
+
+@pytest.fixture
+def one_target():
+    """One non-upright waypoint after the 2 s upright start, held for a whole short episode."""
+    from neck_env.targets import TargetSpec
+
+    return TargetSpec(upright_probability=0.0, step_probability=1.0, hold_s=(20.0, 20.0),
+                      ramp_s=(2.0, 2.0), theta_min_deg=12.0)
+
+
+@pytest.fixture
+def rig(closed_loop):
+    """Factory: ``rig(supply_A=7.0, imu_absent=False, seed=0)`` -> (harness, simulated neck,
+    ``RigLink`` the host code talks through); links closed at teardown, before the rigs."""
+    from neck_env.rig.link import RigLink
+
+    links = []
+
+    def start(supply_A: float = 7.0, imu_absent: bool = False, seed: int = 0):
+        h, neck = closed_loop(supply_A, imu_absent=imu_absent, seed=seed)
+        link = RigLink(h.pty_path, open_timeout=5.0)
+        links.append(link)
+        return h, neck, link
+
+    yield start
+    for link in links:
+        link.close()

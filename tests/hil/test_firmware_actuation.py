@@ -16,29 +16,10 @@ from agents.policy import DeployedPolicy  # noqa: E402
 from neck_env.actuation import FIRMWARE, FirmwareLimits  # noqa: E402
 from neck_env.envs import NeckTrackEnv  # noqa: E402
 from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
-from neck_env.rig.link import RigLink  # noqa: E402
-from neck_env.targets import TargetSpec  # noqa: E402
 
 pytestmark = pytest.mark.hil
 
 POLICY = Path(__file__).resolve().parents[2] / "agents" / "policies" / "ars_residual_v1.zip"
-ONE_TARGET = TargetSpec(upright_probability=0.0, step_probability=1.0, hold_s=(20.0, 20.0),
-                        ramp_s=(2.0, 2.0), theta_min_deg=12.0)
-
-
-@pytest.fixture
-def rig(closed_loop):
-    links = []
-
-    def start(supply_A: float = 7.0, seed: int = 0):
-        h, neck = closed_loop(supply_A, seed=seed)
-        link = RigLink(h.pty_path, open_timeout=5.0)
-        links.append(link)
-        return h, neck, link
-
-    yield start
-    for link in links:
-        link.close()
 
 
 def test_simulated_limits_are_what_the_firmware_reports(rig):
@@ -73,10 +54,11 @@ def test_duty_command_heats_as_the_simulated_firmware(rig):
 
 
 @pytest.mark.skipif(not POLICY.exists(), reason="no shipped v1 residual policy")
-def test_shipped_v1_policy_holds_the_target_as_well_as_the_pid_on_the_rig(rig, capsys):
+def test_shipped_v1_policy_holds_the_target_as_well_as_the_pid_on_the_rig(rig, capsys,
+                                                                          one_target):
     """The issue's HIL criterion: over the last 4 s of a one-target episode the policy's error
     is within 0.5 deg of the PID's, both through HardwareNeckEnv on the firmware in simavr."""
-    kw = dict(neck_env.V1_KWARGS, episode_s=14.0, targets=ONE_TARGET)
+    kw = dict(neck_env.V1_KWARGS, episode_s=14.0, targets=one_target)
     tails = {}
     for name in ("pid", "policy"):
         h, neck, link = rig()

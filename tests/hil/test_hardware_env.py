@@ -20,31 +20,11 @@ from neck_env.params import default_params  # noqa: E402
 from neck_env.physics.plant import constants_from_params, simulate  # noqa: E402
 from neck_env.recording import read_recording  # noqa: E402
 from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
-from neck_env.rig.link import RigError, RigLink, RigRefused  # noqa: E402
-from neck_env.targets import TargetSpec  # noqa: E402
+from neck_env.rig.link import RigError, RigRefused  # noqa: E402
 
 pytestmark = pytest.mark.hil
 
 POLICY = Path(__file__).resolve().parents[2] / "agents" / "policies" / "ppo_necktrack.zip"
-# one non-upright waypoint after the 2 s upright start, held for the whole short episode
-ONE_TARGET = TargetSpec(upright_probability=0.0, step_probability=1.0, hold_s=(20.0, 20.0),
-                        ramp_s=(2.0, 2.0), theta_min_deg=12.0)
-
-
-@pytest.fixture
-def rig(closed_loop):
-    """Factory: ``rig(supply_A, imu_absent=False)`` -> (harness, simulated neck, link)."""
-    links = []
-
-    def start(supply_A: float = 7.0, imu_absent: bool = False, seed: int = 0):
-        h, neck = closed_loop(supply_A, imu_absent=imu_absent, seed=seed)
-        link = RigLink(h.pty_path, open_timeout=5.0)
-        links.append(link)
-        return h, neck, link
-
-    yield start
-    for link in links:
-        link.close()
 
 
 def _episode(env, act, seed):
@@ -58,9 +38,9 @@ def _episode(env, act, seed):
 
 
 @pytest.mark.parametrize("agent", ["pid", "ppo"])
-def test_closed_loop_episode_moves_head_to_target(rig, tmp_path, agent):
+def test_closed_loop_episode_moves_head_to_target(rig, tmp_path, agent, one_target):
     h, neck, link = rig(7.0)
-    env = HardwareNeckEnv(link=link, episode_s=14.0, cooldown_s=0, targets=ONE_TARGET,
+    env = HardwareNeckEnv(link=link, episode_s=14.0, cooldown_s=0, targets=one_target,
                           record_dir=tmp_path)
     if agent == "pid":
         ctrl = make_controller("pid", {"episode_s": 14.0})
