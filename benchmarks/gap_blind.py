@@ -3,7 +3,7 @@
     python benchmarks/gap_blind.py                 # 43 datasets, ~8 minutes on 2 cores
     python benchmarks/gap_blind.py --quick         # 12 datasets
     python benchmarks/gap_blind.py --hard          # rigs further from the model
-    python benchmarks/gap_blind.py --out runs/gap_blind --keep
+    python benchmarks/gap_blind.py --out runs/gap_blind --resume   # skip datasets already done
     python benchmarks/gap_blind.py --ray auto      # datasets as Ray tasks on a cluster
 
 Each case is a synthetic dataset (``neck_env.gap.synthetic``, seeded; effect magnitudes drawn
@@ -249,6 +249,9 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default=None, help="comma-separated seeds to run (debugging)")
     ap.add_argument("--out", default=None, help="keep datasets, reports and results.json here "
                     "(with --ray: results.json only; datasets live in the workers' temp folders)")
+    ap.add_argument("--resume", action="store_true",
+                    help="with --out: load the datasets already diagnosed there (result_<seed>.json, "
+                    "written as each one finishes) and run only the rest; the summary covers all")
     ap.add_argument("--datasets", type=int, default=None, help="only the first N cases of the suite")
     ap.add_argument("--recordings", type=int, default=None,
                     help="recordings per dataset (default: the generator's)")
@@ -262,13 +265,30 @@ def main(argv=None) -> int:
            if v is not None}
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
     only = {int(x) for x in args.only.split(",")} if args.only else None
+    if args.resume and not args.out:
+        ap.error("--resume needs --out (the folder of the interrupted run)")
     suite = [c for c in cases(args.quick) if only is None or c[1] in only][:args.datasets]
+    done: list[dict] = []
+    if args.resume:
+        for c in list(suite):
+            f = root / f"result_{c[1]}.json"
+            if f.exists():
+                r = json.loads(f.read_text())
+                if sorted(r["truth"]) != sorted(c[0]):
+                    raise SystemExit(f"{f}: truth {sorted(r['truth'])} is not this suite's case "
+                                     f"{sorted(c[0])} for seed {c[1]} (another suite's folder?)")
+                done.append(r)
+                suite.remove(c)
+        print(f"resuming: {len(done)} dataset(s) already diagnosed in {root}, {len(suite)} to run",
+              flush=True)
 
     def line(o, k, n):
         if o.error is not None:
             print(f"seed {suite[o.index][1]}: FAILED {o.error}", flush=True)
             return
         r, rep = o.value, o.value["report"]
+        if args.out:  # as each finishes: an interrupted run resumes from these
+            (root / f"result_{r['seed']}.json").write_text(json.dumps(dict(r, node_id=o.node_id)))
         where = "" if o.node_id == "local" else f" [node {o.node_id[:8]}]"
         print(f"seed {r['seed']}: truth {sorted(r['truth']) or '-'} -> verdict {rep.get('verdict')} "
               f"unexplained {rep.get('unexplained')} top {[e['name'] for e in rep.get('effects', [])[:2]]} "
@@ -277,7 +297,8 @@ def main(argv=None) -> int:
     try:
         work = partial(run_case_task, root=None if args.ray else root, run_kwargs=run_kwargs)
         outcomes = fan_out(work, suite, args.ray, progress=line)
-        results = [dict(o.value, node_id=o.node_id) for o in outcomes if o.error is None]
+        results = done + [dict(o.value, node_id=o.node_id) for o in outcomes if o.error is None]
+        results.sort(key=lambda r: r["seed"])
         (root / "results.json").write_text(json.dumps(
             [{k: v for k, v in r.items()} for r in results], indent=1))
         print()

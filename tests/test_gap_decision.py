@@ -61,3 +61,44 @@ def test_responsible_also_beats_the_best_structural_discrepancy():
     worse = _cmp(gap_before_deg=0.38, gap_after_deg=0.40, reduction=-0.05,
                  abs_reduction_deg=-0.02, F=0.9, t=-1.0, recordings_improved=1)
     assert not responsible(replace(c, vs_structure=worse, structure_significant=False))
+
+
+# --- the held-out split: interpolation, not extrapolation -----------------------------------
+
+def _split(peaks):
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from neck_env.gap.diagnose import choose_holdout
+
+    recs = [SimpleNamespace(currents_A=np.array([[0.0, 0.0, 0.0], p], float)) for p in peaks]
+    return choose_holdout(SimpleNamespace(recordings=recs))[0]
+
+
+def test_no_held_out_recording_drives_a_muscle_beyond_the_fitting_set():
+    import numpy as np
+
+    # one pulse per muscle at rising currents: every third held out by time alone would hold
+    # out the 8 A pulse on muscle 2 (recording 14) against a fit up to 7.5 A
+    peaks = [[0, 0, 0]] * 15
+    for k, (m, a) in enumerate([(1, 6.5), (1, 7.5), (2, 6), (2, 6), (0, 5.5), (2, 6), (1, 6),
+                                (0, 5), (0, 7), (2, 4.5), (0, 7), (1, 5.5), (2, 5.5), (1, 8), (2, 4)]):
+        p = [0.0, 0.0, 0.0]
+        p[m] = a
+        peaks[k] = p
+    hold = _split(peaks)
+    P = np.array(peaks)
+    assert 4 <= hold.sum() <= 6
+    assert (P[hold].max(axis=0) <= P[~hold].max(axis=0)).all()
+    assert not hold[13]  # the hardest pulse is fitted
+    # every muscle still in the fitting set
+    assert (P[~hold].max(axis=0) > 0).all()
+
+
+def test_a_split_already_interpolating_is_left_alone():
+    import numpy as np
+
+    peaks = [[8.0 - 0.2 * k, 0, 0] for k in range(9)]  # falling currents: held-out ones are inside
+    hold = _split(peaks)
+    assert list(np.flatnonzero(hold)) == [1, 4, 7]
