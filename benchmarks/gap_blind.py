@@ -1,7 +1,7 @@
 """Blind evaluation of the sim-to-real gap diagnosis (issue #6).
 
-    python benchmarks/gap_blind.py                 # 43 datasets, ~8 minutes on 2 cores
-    python benchmarks/gap_blind.py --quick         # 12 datasets
+    python benchmarks/gap_blind.py                 # 43 datasets, ~1 h (30-160 s each, one at a time)
+    python benchmarks/gap_blind.py --quick         # 15 datasets, ~20 min
     python benchmarks/gap_blind.py --hard          # rigs further from the model
     python benchmarks/gap_blind.py --out runs/gap_blind --resume   # skip datasets already done
     python benchmarks/gap_blind.py --ray auto      # datasets as Ray tasks on a cluster

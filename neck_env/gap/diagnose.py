@@ -145,19 +145,16 @@ def _interpolating(hold: np.ndarray, peak_A: np.ndarray) -> np.ndarray:
             break
         m = int(np.flatnonzero(over.any(axis=0))[0])
         i = int(np.flatnonzero(hold)[np.argmax(peak_A[hold, m])])
-        new_max = np.maximum(fit_max, peak_A[i])
         partner = None
         for j in sorted(range(R), key=lambda j: abs(j - i)):
-            if hold[j] or j == i or (peak_A[j] - new_max > 1e-6).any():
+            if hold[j] or j == i:
                 continue
-            others = ~hold.copy()
-            others[j] = False
-            others[i] = True
-            used = peak_A[others].max(axis=0) > 0
-            if ((peak_A[j] > 0) & ~used).any():  # j is the only fitting recording of a muscle
-                continue
-            partner = j
-            break
+            rest = ~hold
+            rest[j], rest[i] = False, True
+            # inside what stays fitted on every muscle (so also never a muscle's only recording)
+            if (peak_A[j] - peak_A[rest].max(axis=0) <= 1e-6).all():
+                partner = j
+                break
         if partner is None:
             break
         hold[i], hold[partner] = False, True
