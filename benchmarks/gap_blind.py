@@ -269,6 +269,16 @@ def main(argv=None) -> int:
         ap.error("--resume needs --out (the folder of the interrupted run)")
     suite = [c for c in cases(args.quick) if only is None or c[1] in only][:args.datasets]
     done: list[dict] = []
+    if args.out:
+        # what the folder's datasets were drawn with: a resume must draw the rest the same way
+        setup = {"quick": args.quick, **run_kwargs}
+        setup_file = root / "suite.json"
+        if args.resume and setup_file.exists():
+            old = json.loads(setup_file.read_text())
+            if old != setup:
+                raise SystemExit(f"{root} holds a suite run with {old}; this run is {setup}: "
+                                 f"resume with the same options, or use another --out")
+        setup_file.write_text(json.dumps(setup))
     if args.resume:
         for c in list(suite):
             f = root / f"result_{c[1]}.json"

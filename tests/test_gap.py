@@ -271,3 +271,31 @@ def test_blind_independent_rig(tmp_path, effects, seed):
     else:
         assert rep["verdict"] == effects
         assert rep["effects"][0]["name"] == effects[0]
+
+
+def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(tmp_path, capsys):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "gap_blind", Path(__file__).resolve().parents[1] / "benchmarks" / "gap_blind.py")
+    gb = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gb)
+    tiny = ["--datasets", "2", "--recordings", "3", "--duration", "10", "--out", str(tmp_path)]
+    assert gb.main(tiny) == 0
+    first = json.loads((tmp_path / "results.json").read_text())
+    assert [r["seed"] for r in first] == [1000, 1001]
+    # interrupted after the first dataset: only the second runs again
+    (tmp_path / "result_1001.json").unlink()
+    report_1000 = (tmp_path / "report_1000.json").stat().st_mtime_ns
+    capsys.readouterr()
+    assert gb.main(tiny + ["--resume"]) == 0
+    out = capsys.readouterr().out
+    assert "resuming: 1 dataset(s) already diagnosed" in out and "1 to run" in out
+    assert (tmp_path / "report_1000.json").stat().st_mtime_ns == report_1000
+    again = json.loads((tmp_path / "results.json").read_text())
+    assert [r["seed"] for r in again] == [1000, 1001]
+    assert again[1]["report"]["verdict"] == first[1]["report"]["verdict"]
+    # the same folder with another suite's options: refused, nothing overwritten
+    with pytest.raises(SystemExit, match="resume with the same options"):
+        gb.main(tiny + ["--resume", "--baseline", "wide"])
+    assert (tmp_path / "report_1000.json").stat().st_mtime_ns == report_1000
