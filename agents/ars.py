@@ -1,4 +1,5 @@
-"""Augmented Random Search (Mania, Guy and Recht 2018, ARS V2-t) of a linear residual on the PID.
+"""Augmented Random Search (Mania, Guy and Recht 2018, ARS V2-t) of a linear residual on a
+controller: the PID (``base: pid``, the default) or bang-bang (``base: bang_bang``).
 
     python -m agents.ars agents/configs/ars_residual.yml --ship agents/policies/ars_residual_v1
 
@@ -11,15 +12,15 @@ same episodes (common random numbers), so candidates are compared paired, as the
 compares controllers.
 
 The policy: ``r = clip(W f_norm + b, -1, 1)`` with ``f`` the residual features of
-``agents.residual`` (observation, PID currents, PID integral, elapsed fraction) normalized by
-running statistics (ARS V2), and the current ``clip(PID + scale_A r, 0, i_max)`` (relay mode:
-sigma-delta encoded, as the heuristics do). W = 0, b = 0 is the PID. All candidates x episodes of
+``agents.residual`` (observation, base currents, error integral, elapsed fraction) normalized by
+running statistics (ARS V2), and the current ``clip(base + scale_A r, 0, i_max)`` (relay mode:
+sigma-delta encoded, as the heuristics do). W = 0, b = 0 is the base controller. All candidates x episodes of
 an iteration advance together in one natively batched env.
 
 Outputs (``--out``, default ``runs/ars_<name>``): ``policy.zip`` (the weights, an npz archive:
 no pickles) + ``policy.json`` (``algo: "ARS"``, the residual, observation statistics, the
 config, provenance) for ``agents.policy.DeployedPolicy``; ``curve.csv`` / ``curve.png``
-(validation RMSE of the centre policy against the PID's on the same episodes, per iteration);
+(validation RMSE of the centre policy against the base's on the same episodes, per iteration);
 ``--ship PATH`` copies the policy and its curve there. Progress: one line per iteration.
 """
 
@@ -39,7 +40,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .residual import N_FEATURES, PIDResidual
+from .residual import BASES, N_FEATURES, ControllerResidual
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,7 @@ class ARSConfig:
 
     env_id: str = "NeckTrack-v1"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    base: str = "pid"  # the controller the residual corrects: "pid" or "bang_bang"
     scale_A: float = 3.0  # residual span, A
     iterations: int = 40
     directions: int = 8  # perturbation directions per iteration (each evaluated + and -)
@@ -69,6 +71,8 @@ class ARSConfig:
         if "validation_seeds" in data:
             data["validation_seeds"] = tuple(data["validation_seeds"])
         cfg = cls(**data)
+        if cfg.base not in BASES:
+            raise SystemExit(f"{path}: base {cfg.base!r} is not one of {sorted(BASES)}")
         if not (1 <= cfg.top_directions <= cfg.directions):
             raise SystemExit("need 1 <= top_directions <= directions")
         return cfg
@@ -135,7 +139,7 @@ class RunningStats:
 
 def rollout(task_kwargs: dict[str, Any], scale_A: float, W: np.ndarray, b: np.ndarray,
             seeds: list[int], mean: np.ndarray, std: np.ndarray,
-            stats: RunningStats | None = None) -> np.ndarray:
+            stats: RunningStats | None = None, base_name: str = "pid") -> np.ndarray:
     """Candidates ``W`` (C, 3, F), ``b`` (C, 3) on every seed: one batched env of C x len(seeds)
     rigs. Returns the mean squared tracking error per candidate and episode (C, E), deg^2."""
     from neck_env.envs import NeckTrackVectorEnv
@@ -143,7 +147,7 @@ def rollout(task_kwargs: dict[str, Any], scale_A: float, W: np.ndarray, b: np.nd
     C, E = W.shape[0], len(seeds)
     n = C * E
     venv = NeckTrackVectorEnv(num_envs=n, **task_kwargs)
-    base = PIDResidual(task_kwargs, n, scale_A)
+    base = ControllerResidual(task_kwargs, n, scale_A, base_name)
     obs, _ = venv.reset(seed=[s for _ in range(C) for s in seeds])
     core = venv.core
     cand = np.repeat(np.arange(C), E)
@@ -170,11 +174,11 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     stats = RunningStats(F)
     val = list(cfg.validation_seeds)
     t0 = time.time()
-    # the PID (W = 0) on the validation episodes: the reference of the curve; it also seeds
-    # the feature statistics
+    # the base controller (W = 0) on the validation episodes: the reference of the curve; it
+    # also seeds the feature statistics
     pid_val = rollout(task_kwargs, cfg.scale_A, W[None], b[None], val, np.zeros(F), np.ones(F),
-                      stats)[0]
-    log(f"PID on {len(val)} validation episodes: RMSE {np.sqrt(pid_val.mean()):.3f} deg "
+                      stats, cfg.base)[0]
+    log(f"{cfg.base} on {len(val)} validation episodes: RMSE {np.sqrt(pid_val.mean()):.3f} deg "
         f"({time.time() - t0:.0f} s)")
     curve = [(0, float(np.sqrt(pid_val.mean())), float(np.sqrt(pid_val.mean())), 0.0)]
     best = (float(pid_val.mean()), W.copy(), b.copy(), stats.mean.copy(), stats.std().copy(), 0)
@@ -185,7 +189,7 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
         seeds = [int(s) for s in rng.integers(10_000, 2**31 - 1, cfg.episodes_per_candidate)]
         Wc = np.concatenate([W + cfg.noise_std * dW, W - cfg.noise_std * dW])
         bc = np.concatenate([b + cfg.noise_std * db, b - cfg.noise_std * db])
-        mse = rollout(task_kwargs, cfg.scale_A, Wc, bc, seeds, mean, std, stats)
+        mse = rollout(task_kwargs, cfg.scale_A, Wc, bc, seeds, mean, std, stats, cfg.base)
         reward = -mse.mean(axis=1)  # objective: minus the pooled squared error
         r_plus, r_minus = reward[:cfg.directions], reward[cfg.directions:]
         top = np.argsort(-np.maximum(r_plus, r_minus))[:cfg.top_directions]
@@ -197,11 +201,12 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
         line = (f"iteration {it}/{cfg.iterations}: candidates RMSE {np.sqrt(mse.mean(axis=1)).min():.3f}"
                 f"-{np.sqrt(mse.mean(axis=1)).max():.3f} deg")
         if it % cfg.validate_every == 0 or it == cfg.iterations:
-            v = rollout(task_kwargs, cfg.scale_A, W[None], b[None], val, stats.mean, stats.std())[0]
+            v = rollout(task_kwargs, cfg.scale_A, W[None], b[None], val, stats.mean, stats.std(),
+                        base_name=cfg.base)[0]
             d = np.sqrt(v) - np.sqrt(pid_val)
             curve.append((it, float(np.sqrt(v.mean())), float(np.sqrt(pid_val.mean())),
                           float(d.mean())))
-            line += (f"; validation RMSE {np.sqrt(v.mean()):.3f} deg (PID {np.sqrt(pid_val.mean()):.3f}"
+            line += (f"; validation RMSE {np.sqrt(v.mean()):.3f} deg ({cfg.base} {np.sqrt(pid_val.mean()):.3f}"
                      f", paired mean {d.mean():+.3f}, better in {int((d < 0).sum())}/{len(val)})")
             if v.mean() < best[0]:
                 best = (float(v.mean()), W.copy(), b.copy(), stats.mean.copy(), stats.std().copy(), it)
@@ -209,7 +214,7 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     wall = time.time() - t0
     _, Wb, bb, mb, sb, it_best = best
     out.mkdir(parents=True, exist_ok=True)
-    _write_curve(out, curve)
+    _write_curve(out, curve, cfg.base)
     meta = export(out / "policy", Wb, bb, mb, sb, cfg, task_kwargs, {
         "seed": cfg.seed, "iterations": cfg.iterations, "chosen_iteration": it_best,
         "wall_time_s": round(wall, 1), "command": " ".join([sys.executable, *sys.argv]),
@@ -230,15 +235,15 @@ def export(path: Path, W, b, mean, std, cfg: ARSConfig, task_kwargs: dict[str, A
             # DeployedPolicy's normalization: (x - mean) / sqrt(var + epsilon), clipped
             "obs_norm": {"mean": list(map(float, mean)), "var": list(map(float, std ** 2)),
                          "clip": 1e9, "epsilon": 0.0},
-            "residual": {"base": "pid", "scale_A": cfg.scale_A},
+            "residual": {"base": cfg.base, "scale_A": cfg.scale_A},
             "config": {**asdict(cfg), "validation_seeds": list(cfg.validation_seeds)},
             "trained": trained}
     path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
     return meta
 
 
-def _write_curve(out: Path, curve: list[tuple]) -> None:
-    (out / "curve.csv").write_text("iteration,validation_rmse_deg,pid_rmse_deg,paired_mean_diff_deg\n"
+def _write_curve(out: Path, curve: list[tuple], base: str = "pid") -> None:
+    (out / "curve.csv").write_text(f"iteration,validation_rmse_deg,{base}_rmse_deg,paired_mean_diff_deg\n"
                                    + "".join(f"{i},{v:.4f},{p:.4f},{d:.4f}\n" for i, v, p, d in curve))
     import matplotlib
 
@@ -248,7 +253,7 @@ def _write_curve(out: Path, curve: list[tuple]) -> None:
     it = [c[0] for c in curve]
     fig, ax = plt.subplots(figsize=(6, 3.5))
     ax.plot(it, [c[1] for c in curve], "o-", label="ARS residual (centre policy)")
-    ax.plot(it, [c[2] for c in curve], "k--", label="PID")
+    ax.plot(it, [c[2] for c in curve], "k--", label=base)
     ax.set_xlabel("ARS iteration")
     ax.set_ylabel("validation RMSE (deg)")
     ax.grid(alpha=0.3)

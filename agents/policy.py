@@ -40,10 +40,11 @@ class DeployedPolicy:
         self.meta = meta
         self.residual = None
         if meta.get("residual") is not None:
-            from agents.residual import PIDResidual
+            from agents.residual import ControllerResidual
 
             task_kwargs = dict(meta.get("env_kwargs", {})) if env_kwargs is None else dict(env_kwargs)
-            self.residual = PIDResidual(task_kwargs, 1, float(meta["residual"]["scale_A"]))
+            self.residual = ControllerResidual(task_kwargs, 1, float(meta["residual"]["scale_A"]),
+                                               meta["residual"].get("base", "pid"))
         self.frame_stack = int(meta.get("frame_stack", 1))
         norm = meta.get("obs_norm")
         if norm is not None:

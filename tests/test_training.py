@@ -144,9 +144,9 @@ def test_residual_policy_starts_as_the_pid_and_round_trips(tmp_path):
 
 
 def test_residual_relay_policy_outputs_relay_states():
-    from agents.residual import PIDResidual
+    from agents.residual import ControllerResidual
 
-    base = PIDResidual({"action_mode": "relay", "actuation": "firmware"}, 2, 3.0)
+    base = ControllerResidual({"action_mode": "relay", "actuation": "firmware"}, 2, 3.0)
     obs = np.zeros((2, 8), np.float32)
     obs[:, 2:5] = 25.0
     obs[:, 5] = 15.0  # target 15 deg toward muscle 1's side
@@ -157,3 +157,31 @@ def test_residual_relay_policy_outputs_relay_states():
     assert acts.dtype == np.int8 and set(np.unique(acts)) <= {0, 1}
     # +3 A on muscle 0 in env 0 vs -3 A in env 1: more on-steps
     assert acts[:, 0, 0].sum() > acts[:, 1, 0].sum()
+
+
+def test_a_zero_residual_on_bang_bang_is_bang_bang():
+    import gymnasium as gym
+
+    from agents.controllers import BangBangController
+    from agents.controllers.base import ControlTask
+    from agents.residual import ControllerResidual
+
+    kw = {"action_mode": "current"}
+    res = ControllerResidual(kw, 1, 3.0, base="bang_bang")
+    ref = BangBangController(ControlTask.from_env_kwargs(kw))
+    env = gym.make("NeckTrack-v1", **kw)
+    obs, _ = env.reset(seed=3)
+    res.reset([0])
+    ref.reset()
+    on = 0
+    for _ in range(300):
+        f = res.features(obs[None])
+        a = res.actions(np.zeros((1, 3)))[0]
+        b = ref.act(obs)
+        np.testing.assert_allclose(a, b, atol=1e-6)
+        on += int((a > 0).any())
+        obs, *_ = env.step(a)
+    assert on > 0  # it did heat: the comparison covers switching, not only zeros
+    assert np.abs(f[0, 11:13]).sum() > 0  # the error integral it adds for a base without one
+    with pytest.raises(ValueError, match="residual base 'mpc'"):
+        ControllerResidual(kw, 1, 3.0, base="mpc")
