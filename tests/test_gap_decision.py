@@ -102,3 +102,18 @@ def test_a_split_already_interpolating_is_left_alone():
     peaks = [[8.0 - 0.2 * k, 0, 0] for k in range(9)]  # falling currents: held-out ones are inside
     hold = _split(peaks)
     assert list(np.flatnonzero(hold)) == [1, 4, 7]
+
+
+def test_a_scanned_draft_splits_the_compromise_h_into_before_and_after():
+    from neck_env.gap.diagnose import DRAFT_FROM, _draft_rebalanced
+
+    n, h_c = 15, 1.2
+    for k, g in ((7, 2.0), (0, 0.45), (14, 1.5)):
+        v = _draft_rebalanced({DRAFT_FROM: float(k), "convection_change.gain": g}, {"h_scale": h_c}, n)
+        h_b = v["h_scale"]
+        # the recordings' average h under the draft is the compromise the baseline found
+        assert (k * h_b + (n - k) * g * h_b) / n == pytest.approx(h_c)
+    # no draft (the temperature form), or no h in the baseline: unchanged
+    plain = {DRAFT_FROM: float(n), "convection_change.tcoef_per_K": 0.004}
+    assert _draft_rebalanced(plain, {"h_scale": h_c}, n) == plain
+    assert "h_scale" not in _draft_rebalanced({DRAFT_FROM: 3.0}, {}, n)

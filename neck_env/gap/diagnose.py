@@ -393,6 +393,24 @@ def _scan_values(name: str, specs: Sequence[ParamSpec], rng: np.random.Generator
     return out
 
 
+def _draft_rebalanced(vals: dict[str, float], base_values: dict[str, float],
+                      n_rec: int) -> dict[str, float]:
+    """A draft start with the baseline's h split into before and after the draft.
+
+    A baseline refitted without the effect has a compromise h, about the recordings' average
+    of the true one before the draft and gain x it after. Scanned on top of that compromise, a
+    draft from the right recording is judged too cold after and too warm before, and a late
+    one wins (independent rig, x2 from recording 8: the scan chose recording 14, the fit then
+    1.33 x from there). So each draft start carries the h whose average with the draft is the
+    compromise: h_before = h_c n / (k + g (n - k))."""
+    first = vals.get(DRAFT_FROM, n_rec)
+    if first >= n_rec or "h_scale" not in base_values:
+        return vals
+    g = vals.get("convection_change.gain", 1.0)
+    k = max(int(round(first)), 0)
+    return {**vals, "h_scale": base_values["h_scale"] * n_rec / (k + g * (n_rec - k))}
+
+
 def settle_draft(model: Model, cand: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray) -> None:
     """Place a fitted draft's start among the boundaries the fitting data cannot tell apart.
 
@@ -457,6 +475,7 @@ def scan_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
         specs = EFFECT_SPECS[name]
         cand = effect_candidate(model, base_effects + [name], base_values)
         for vals in _scan_values(name, specs, rng, model.data.n_rec):
+            vals = _draft_rebalanced(vals, base_values, model.data.n_rec)
             merged = {**base_values, **vals}
             st = cand.setting(cand.u_from(merged))
             if DRAFT_FROM in vals:
