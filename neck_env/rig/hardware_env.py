@@ -584,15 +584,17 @@ class HardwareNeckEnv(gym.Env):
             on_ms, span_ms = self._on_ms.copy(), self._span_ms
             self._on_ms[:] = 0.0
             self._span_ms = 0.0
-        if tm is None or age > TELEMETRY_TIMEOUT_S:
-            raise RigTimeout(f"{self.link.port}: no telemetry for {age:.2f} s; relays switched off")
-        self._check_faults(tm)
+        # a restarted MCU also falls silent (it streams again only once configured): name the
+        # restart, the cause, before the silence it brings
         if len(self.link.boots) > self._boots_seen:
             boot = self.link.boots[-1]
             raise RigFirmwareReset(
                 f"{self.link.port}: the MCU restarted mid-episode ("
                 f"{'AVR watchdog: its loop hung' if boot.watchdog_reset else 'reset or brown-out'}"
                 f"); its commands are lost, relays switched off")
+        if tm is None or age > TELEMETRY_TIMEOUT_S:
+            raise RigTimeout(f"{self.link.port}: no telemetry for {age:.2f} s; relays switched off")
+        self._check_faults(tm)
         frac = on_ms / span_ms if span_ms > 0 else np.array([tm.relays >> k & 1 for k in range(3)], float)
         rms = Is * np.sqrt(np.clip(frac, 0.0, 1.0))
         # over the telemetry's own time span when there is one (a late step covers more than
