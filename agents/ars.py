@@ -176,12 +176,12 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     t0 = time.time()
     # the base controller (W = 0) on the validation episodes: the reference of the curve; it
     # also seeds the feature statistics
-    pid_val = rollout(task_kwargs, cfg.scale_A, W[None], b[None], val, np.zeros(F), np.ones(F),
+    base_val = rollout(task_kwargs, cfg.scale_A, W[None], b[None], val, np.zeros(F), np.ones(F),
                       stats, cfg.base)[0]
-    log(f"{cfg.base} on {len(val)} validation episodes: RMSE {np.sqrt(pid_val.mean()):.3f} deg "
+    log(f"{cfg.base} on {len(val)} validation episodes: RMSE {np.sqrt(base_val.mean()):.3f} deg "
         f"({time.time() - t0:.0f} s)")
-    curve = [(0, float(np.sqrt(pid_val.mean())), float(np.sqrt(pid_val.mean())), 0.0)]
-    best = (float(pid_val.mean()), W.copy(), b.copy(), stats.mean.copy(), stats.std().copy(), 0)
+    curve = [(0, float(np.sqrt(base_val.mean())), float(np.sqrt(base_val.mean())), 0.0)]
+    best = (float(base_val.mean()), W.copy(), b.copy(), stats.mean.copy(), stats.std().copy(), 0)
     for it in range(1, cfg.iterations + 1):
         mean, std = stats.mean.copy(), stats.std().copy()
         dW = rng.standard_normal((cfg.directions, 3, F))
@@ -203,10 +203,10 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
         if it % cfg.validate_every == 0 or it == cfg.iterations:
             v = rollout(task_kwargs, cfg.scale_A, W[None], b[None], val, stats.mean, stats.std(),
                         base_name=cfg.base)[0]
-            d = np.sqrt(v) - np.sqrt(pid_val)
-            curve.append((it, float(np.sqrt(v.mean())), float(np.sqrt(pid_val.mean())),
+            d = np.sqrt(v) - np.sqrt(base_val)
+            curve.append((it, float(np.sqrt(v.mean())), float(np.sqrt(base_val.mean())),
                           float(d.mean())))
-            line += (f"; validation RMSE {np.sqrt(v.mean()):.3f} deg ({cfg.base} {np.sqrt(pid_val.mean()):.3f}"
+            line += (f"; validation RMSE {np.sqrt(v.mean()):.3f} deg ({cfg.base} {np.sqrt(base_val.mean()):.3f}"
                      f", paired mean {d.mean():+.3f}, better in {int((d < 0).sum())}/{len(val)})")
             if v.mean() < best[0]:
                 best = (float(v.mean()), W.copy(), b.copy(), stats.mean.copy(), stats.std().copy(), it)

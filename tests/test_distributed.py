@@ -29,13 +29,6 @@ requires_ray = pytest.mark.skipif(
 TINY_DATA = ["--recordings", "3", "--duration", "10"]  # a dataset diagnosed in ~1 s
 
 
-def _gap_blind():
-    spec = importlib.util.spec_from_file_location("gap_blind", ROOT / "benchmarks" / "gap_blind.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def _diagnosis(report: dict) -> dict:
     """What a diagnosis concluded: the split, the verdict, ``unexplained`` and every held-out
     gap by name (effects by name, not rank: near-ties on a tiny dataset may swap places)."""
@@ -185,8 +178,8 @@ def test_sweep_on_two_nodes_equals_local_training(cluster, tmp_path):
 
 
 @requires_ray
-def test_gap_blind_on_two_nodes_equals_local(cluster, tmp_path):
-    gb = _gap_blind()
+def test_gap_blind_on_two_nodes_equals_local(cluster, tmp_path, gap_blind_script):
+    gb = gap_blind_script
     _run(["benchmarks/gap_blind.py", "--datasets", "2", *TINY_DATA, "--out", str(tmp_path),
           "--ray", cluster.address], cluster)
     remote = json.loads((tmp_path / "results.json").read_text())

@@ -273,13 +273,9 @@ def test_blind_independent_rig(tmp_path, effects, seed):
         assert rep["effects"][0]["name"] == effects[0]
 
 
-def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(tmp_path, capsys):
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(
-        "gap_blind", Path(__file__).resolve().parents[1] / "benchmarks" / "gap_blind.py")
-    gb = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(gb)
+def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(
+        tmp_path, capsys, gap_blind_script):
+    gb = gap_blind_script
     tiny = ["--datasets", "2", "--recordings", "3", "--duration", "10", "--out", str(tmp_path)]
     assert gb.main(tiny) == 0
     first = json.loads((tmp_path / "results.json").read_text())

@@ -2,10 +2,13 @@
 constructed comparisons: which evidence names an effect and which does not."""
 
 from dataclasses import replace
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
-from neck_env.gap.diagnose import MIN_REL, Comparison, responsible, significant
+from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, Comparison, _draft_rebalanced,
+                                   choose_holdout, responsible, significant)
 
 
 def _cmp(**kw) -> Comparison:
@@ -66,19 +69,11 @@ def test_responsible_also_beats_the_best_structural_discrepancy():
 # --- the held-out split: interpolation, not extrapolation -----------------------------------
 
 def _split(peaks):
-    from types import SimpleNamespace
-
-    import numpy as np
-
-    from neck_env.gap.diagnose import choose_holdout
-
     recs = [SimpleNamespace(currents_A=np.array([[0.0, 0.0, 0.0], p], float)) for p in peaks]
     return choose_holdout(SimpleNamespace(recordings=recs))[0]
 
 
 def test_no_held_out_recording_drives_a_muscle_beyond_the_fitting_set():
-    import numpy as np
-
     # one pulse per muscle at rising currents: every third held out by time alone would hold
     # out the 8 A pulse on muscle 2 (recording 14) against a fit up to 7.5 A
     peaks = [[0, 0, 0]] * 15
@@ -97,16 +92,12 @@ def test_no_held_out_recording_drives_a_muscle_beyond_the_fitting_set():
 
 
 def test_a_split_already_interpolating_is_left_alone():
-    import numpy as np
-
     peaks = [[8.0 - 0.2 * k, 0, 0] for k in range(9)]  # falling currents: held-out ones are inside
     hold = _split(peaks)
     assert list(np.flatnonzero(hold)) == [1, 4, 7]
 
 
 def test_a_scanned_draft_splits_the_compromise_h_into_before_and_after():
-    from neck_env.gap.diagnose import DRAFT_FROM, _draft_rebalanced
-
     n, h_c = 15, 1.2
     for k, g in ((7, 2.0), (0, 0.45), (14, 1.5)):
         v = _draft_rebalanced({DRAFT_FROM: float(k), "convection_change.gain": g}, {"h_scale": h_c}, n)

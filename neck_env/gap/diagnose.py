@@ -3,8 +3,9 @@
 ``diagnose(dataset) -> Diagnosis`` runs, in order:
 
 1. **Split** (``choose_holdout``): about a third of the recordings are held out from fitting
-   (spread over the dataset's time order, the fitting set keeping every muscle used); with a
-   single recording its last 40 % is held out.
+   (spread over the dataset's time order, the fitting set keeping every muscle used, and no
+   held-out recording driving a muscle harder than the fitting set does); with a single
+   recording its last 40 % is held out.
 2. **Baseline** (``_calibrate``): this rig's baseline (``model.nominal_specs``) fitted to the
    fitting recordings -- a Latin-hypercube scan, then lockstep Levenberg-Marquardt from the
    defaults and the best scan points (``fit_baseline``); a reading at rest that drifts through
@@ -370,10 +371,11 @@ DRAFT_ONSETS = 24  # recording boundaries tried for the start of a draft (spread
 
 
 def _scan_values(name: str, specs: Sequence[ParamSpec], rng: np.random.Generator,
-                 n_rec: int) -> list[dict[str, float]]:
+                 n_rec: int, base_values: dict[str, float]) -> list[dict[str, float]]:
     """Effect values to scan: the generic grid, and for a convection change its two forms --
     h growing with temperature, and a draft starting at a recording boundary (discrete, so
-    scanned here and held fixed by the fit)."""
+    scanned here and held fixed by the fit; each with its split of the baseline's h,
+    ``_draft_rebalanced``)."""
     if name == "supply_limit":
         # the limit binds only below ~ 8 A x R_load (~6-8 V): above that the cost is flat, so
         # a coarse log grid over 1.5-40 V would leave the fit stranded at "off"
@@ -388,8 +390,9 @@ def _scan_values(name: str, specs: Sequence[ParamSpec], rng: np.random.Generator
         onsets = np.unique(np.linspace(1, n_rec - 1, min(DRAFT_ONSETS, n_rec - 1)).round().astype(int))
         for first in onsets:
             for g in DRAFT_GAINS:
-                out.append({"convection_change.tcoef_per_K": 0.0, "convection_change.gain": g,
-                            DRAFT_FROM: float(first)})
+                out.append(_draft_rebalanced(
+                    {"convection_change.tcoef_per_K": 0.0, "convection_change.gain": g,
+                     DRAFT_FROM: float(first)}, base_values, n_rec))
     return out
 
 
@@ -474,8 +477,7 @@ def scan_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
     for name in names:
         specs = EFFECT_SPECS[name]
         cand = effect_candidate(model, base_effects + [name], base_values)
-        for vals in _scan_values(name, specs, rng, model.data.n_rec):
-            vals = _draft_rebalanced(vals, base_values, model.data.n_rec)
+        for vals in _scan_values(name, specs, rng, model.data.n_rec, base_values):
             merged = {**base_values, **vals}
             st = cand.setting(cand.u_from(merged))
             if DRAFT_FROM in vals:

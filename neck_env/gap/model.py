@@ -414,6 +414,9 @@ class Prediction:
         return np.mod(np.degrees(np.arctan2(self.tilt_y, self.tilt_x)), 360.0)
 
 
+_IDENTITY = np.eye(3)  # an IMU mounted square to the head
+
+
 def imu_tilt(q: np.ndarray, mount: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Accelerometer tilt vector (deg) of an IMU with rotation ``mount`` (3, 3) in the head
     frame, for poses q (M, 3): the sensor chain's ``accel_tilt_batch`` (the settled reading)."""
@@ -421,9 +424,6 @@ def imu_tilt(q: np.ndarray, mount: np.ndarray | None) -> tuple[np.ndarray, np.nd
     accel_tilt_batch(np.ascontiguousarray(q, dtype=float),
                      _IDENTITY if mount is None else np.ascontiguousarray(mount, dtype=float), out)
     return out[:, 0], out[:, 1]
-
-
-_IDENTITY = np.eye(3)
 
 
 class Model:

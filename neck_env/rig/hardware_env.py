@@ -38,15 +38,6 @@ RECORD_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg",
                   "T1_est", "T2_est", "T3_est", "ax", "ay", "az", "gx", "gy", "gz",
                   "relays", "faults", "target_theta_deg", "target_phi_deg", "t_mcu_ms")
 THERMISTOR_COLUMNS = ("T1", "T2", "T3")
-
-
-def thermistor_columns(mask: int) -> list[tuple[int, str]]:
-    """(muscle index, column) of the fitted thermistors: ``T1..T3`` with all three fitted (the
-    recording format reads spring temperatures only as a complete set), else ``Tk_ntc`` for
-    each fitted one (an extra column: kept, not used by the diagnosis)."""
-    if mask == 0b111:
-        return list(enumerate(THERMISTOR_COLUMNS))
-    return [(k, f"T{k + 1}_ntc") for k in range(3) if mask >> k & 1]
 TELEMETRY_TIMEOUT_S = 0.3  # no telemetry for this long while running: the link is dead
 FIRST_SAMPLE_TIMEOUT_S = 1.0
 MEMORY_SAVE_PERIOD_S = 1.0  # a killed host loses at most this much of the springs' history
@@ -86,6 +77,15 @@ def _warm_up_compiled(estimate: ThermalEstimate) -> None:
     task.budget_fraction_left(1.0)
     estimate.warm_up()
 
+
+
+def thermistor_columns(mask: int) -> list[tuple[int, str]]:
+    """(muscle index, column) of the fitted thermistors: ``T1..T3`` with all three fitted (the
+    recording format reads spring temperatures only as a complete set), else ``Tk_ntc`` for
+    each fitted one (an extra column: kept, not used by the diagnosis)."""
+    if mask == 0b111:
+        return list(enumerate(THERMISTOR_COLUMNS))
+    return [(k, f"T{k + 1}_ntc") for k in range(3) if mask >> k & 1]
 
 class HardwareNeckEnv(gym.Env):
     """NeckTrack on the physical neck (Arduino UNO firmware, ``firmware/``).
@@ -208,6 +208,7 @@ class HardwareNeckEnv(gym.Env):
         self.action_space = self.task.action_space
         self.observation_space = self.task.observation_space
         self.thermistor_mask = thermistors
+        self._thermistor_cols = thermistor_columns(thermistors)  # per telemetry row: once here
         self.stream_hz = stream_hz
         self.cooldown_s = float(cooldown_s)
         self.cooldown_margin_C = float(cooldown_margin_C)
@@ -311,7 +312,7 @@ class HardwareNeckEnv(gym.Env):
                "t_mcu_ms": tm.t_ms}
         T = self._T_est
         row.update({"T1_est": T[0], "T2_est": T[1], "T3_est": T[2]})
-        for k, name in thermistor_columns(self.thermistor_mask):
+        for k, name in self._thermistor_cols:
             row[name] = P.ntc_adc_to_celsius(tm.thermistors[k])
         return row
 
@@ -385,7 +386,7 @@ class HardwareNeckEnv(gym.Env):
                 n += 1
                 path = self.record_dir / f"rec_{n:02d}.csv"
         cols = list(RECORD_COLUMNS)
-        cols[6:6] = [name for _, name in thermistor_columns(self.thermistor_mask)]
+        cols[6:6] = [name for _, name in self._thermistor_cols]
         self._writer = RecordingWriter(path, cols)
         self.recordings.append(path)
 

@@ -144,7 +144,7 @@ class SimulatedNeck:
         g = r[3:] + self.gyro_bias
         if self.gyro_drift_dps_per_s:
             drift = self.gyro_drift_dps_per_s * (self.t_us - self.t_start_us) * 1e-6
-            g = g + np.array([drift, drift, 0.0])
+            g[:2] += drift  # g is this sample's own array (the sum above)
         if self.sensors is not None:
             a = a + self.rng.normal(0.0, self.sensors.accel_noise_g, 3)
             g = g + self.rng.normal(0.0, self.sensors.gyro_noise_dps, 3)
