@@ -109,7 +109,19 @@ def _run_one(fn: Callable[[Any], Any], item: Any, index: int, node_id: str) -> T
 def _remote_one(fn: Callable[[Any], Any], item: Any, index: int) -> TaskOutcome:
     import ray
 
-    return _run_one(fn, item, index, ray.get_runtime_context().get_node_id())
+    ctx = ray.get_runtime_context()
+    _threads_to_cpus(ctx.get_assigned_resources().get("CPU", 1.0))
+    return _run_one(fn, item, index, ctx.get_node_id())
+
+
+def _threads_to_cpus(cpus: float) -> None:
+    """Numba's thread pool sized to the CPUs Ray gave this task. Ray caps OpenMP's threads
+    (OMP_NUM_THREADS) but not numba's, which otherwise starts one per core of the machine: a
+    one-CPU task of the batched plant would take every core, oversubscribing a node that runs
+    several such tasks."""
+    import numba
+
+    numba.set_num_threads(max(1, min(int(cpus), numba.config.NUMBA_NUM_THREADS)))
 
 
 def fan_out(fn: Callable[[Any], Any], items: Sequence[Any] | Iterable[Any],

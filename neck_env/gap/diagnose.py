@@ -43,8 +43,8 @@ from ..recording import Dataset
 from . import localize
 from .fit import Candidate, Fitter, covariance
 from .model import (DRAFT_FROM, EFFECT_SPECS, SCANNED, STRUCTURE, SUPPLY_OFF_V, Model, ParamSpec,
-                    Prediction, Prepared, drift_specs, prepare, residual_parts, switched_off,
-                    tilt_vec)
+                    Prediction, Prepared, drift_specs, prepare, residual_parts, split_key,
+                    switched_off, tilt_vec)
 
 ALPHA = 0.01  # held-out F test level
 T_CRIT = 2.0  # held-out paired t over 5 s blocks (consistency, not the main test)
@@ -862,7 +862,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
             for j in range(i + 1, len(top)):
                 a, b = top[i], top[j]
                 vals = dict(a.setting())
-                vals.update({k: v for k, v in b.values.items() if k.startswith(b.effects[0] + ".")})
+                vals.update({k: v for k, v in b.values.items() if split_key(k)[0] == b.effects[0]})
                 pairs.append(effect_candidate(model, [a.effects[0], b.effects[0]], {}, vals))
         # each pair against its better member alone; responsible as a pair: significant
         # against nominal, and better than that member by the F test (both members needed)

@@ -235,12 +235,22 @@ FIXED_EFFECT_PARAMS = {"supply_limit": {"wiring_ohm": 0.1}}
 DRAFT_FROM = "convection_change.draft_from"  # first recording under the draft (fixed, scanned)
 
 
+def split_key(key: str) -> tuple[str | None, str]:
+    """A setting key as (effect, parameter): ``"convection_change.gain"`` -> ("convection_change",
+    "gain"); a baseline or nuisance key (``"h_scale"``) -> (None, "h_scale").
+
+    A setting is the fitter's flat vector by name (one namespace for the Jacobian, the
+    covariance and the priors); this is the one place that reads the effect out of a key."""
+    effect, dot, param = key.partition(".")
+    return (effect, param) if dot else (None, key)
+
+
 def catalogue_effects(setting: Mapping[str, float], names: Sequence[str]) -> dict[str, dict[str, float]]:
     """The effects of a setting in the catalogue's own parameters (``neck_env.effects``)."""
     out: dict[str, dict[str, float]] = {}
+    parts = [(split_key(k), v) for k, v in setting.items()]
     for name in names:
-        vals = {k.split(".", 1)[1]: float(v) for k, v in setting.items()
-                if k.startswith(name + ".")}
+        vals = {param: float(v) for (effect, param), v in parts if effect == name}
         vals.update(FIXED_EFFECT_PARAMS.get(name, {}))
         if name == "imu_misalignment":
             tx, ty = vals.pop("tilt_x_deg", 0.0), vals.pop("tilt_y_deg", 0.0)
@@ -487,12 +497,11 @@ class Model:
 
     @staticmethod
     def effect_names(setting: Mapping[str, float]) -> list[str]:
-        names = []
+        names: list[str] = []
         for k in setting:
-            if "." in k:
-                n = k.split(".", 1)[0]
-                if n not in names:
-                    names.append(n)
+            effect, _ = split_key(k)
+            if effect is not None and effect not in names:
+                names.append(effect)
         return names
 
     def constants_of(self, setting: Mapping[str, float]) -> np.ndarray:
@@ -515,7 +524,7 @@ class Model:
                             if not k.startswith(SENSOR_ONLY)))
 
     def mount_of(self, setting: Mapping[str, float]) -> np.ndarray | None:
-        if not any(k.startswith("imu_misalignment.") for k in setting):
+        if "imu_misalignment" not in self.effect_names(setting):
             return None
         eff = catalogue_effects(setting, ["imu_misalignment"])
         return fx.imu_mount(eff)
