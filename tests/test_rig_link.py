@@ -22,7 +22,7 @@ from neck_env.recording import read_dataset, read_recording  # noqa: E402
 from neck_env.rig import protocol as P  # noqa: E402
 from neck_env.rig.errors import (RigFirmwareReset, RigImuError, RigLinkLost,  # noqa: E402
                                  RigNotAtRest, RigRefused, RigTimeout)
-from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
+from neck_env.rig.hardware_env import TELEMETRY_TIMEOUT_S, HardwareNeckEnv  # noqa: E402
 from neck_env.rig.link import RigLink  # noqa: E402
 
 
@@ -192,6 +192,30 @@ def test_env_silent_firmware_times_out_with_relays_off(fw):
     with pytest.raises(RigTimeout, match="no reply to SetRelays|no telemetry"):
         for _ in range(20):
             env.step(np.array([1, 0, 0]))
+    env.close()
+
+
+def test_env_stalled_host_is_not_a_silent_link(fw):
+    """A host that stalled (a garbage collection, a slow policy) finds its last telemetry old
+    while fresh frames wait unread in the port: the reader drains them, the step goes on. A
+    link that stays silent is still a timeout."""
+    env = _env(fw, action_mode="relay")
+    env.reset(seed=0)
+    env.step(np.array([1, 0, 0]))
+    with env._lock:
+        env._last_host_t -= 1.0  # as if the reader had not run for a second
+    t0 = time.monotonic()
+    env._drain_after_stall()
+    with env._lock:
+        age = time.monotonic() - env._last_host_t
+    assert age <= TELEMETRY_TIMEOUT_S
+    assert time.monotonic() - t0 < TELEMETRY_TIMEOUT_S
+    env.step(np.array([1, 0, 0]))
+    fw.silent = True
+    with env._lock:
+        env._last_host_t -= 1.0
+    with pytest.raises(RigTimeout, match="no reply to SetRelays|no telemetry"):
+        env.step(np.array([1, 0, 0]))
     env.close()
 
 

@@ -270,6 +270,21 @@ class HardwareNeckEnv(gym.Env):
             self._span_ms = 0.0
             self._samples = 0
 
+    def _drain_after_stall(self) -> None:
+        """Telemetry that looks stale because this process stalled (a garbage collection, a slow
+        policy, a loaded machine) rather than the link: the frames then wait in the port's
+        buffer, unread. Give the reader thread up to the timeout again to drain them, so only a
+        link silent for that long too, or a restarted MCU, is called silent."""
+        end = time.monotonic() + TELEMETRY_TIMEOUT_S
+        while len(self.link.boots) <= self._boots_seen:
+            with self._lock:
+                fresh = (self._last is not None
+                         and time.monotonic() - self._last_host_t <= TELEMETRY_TIMEOUT_S)
+            if fresh or time.monotonic() >= end:
+                return
+            self.link.check()
+            time.sleep(0.005)
+
     # -- telemetry (reader thread) ------------------------------------------------------------
     def _on_telemetry(self, tm: P.Telemetry, t_host: float) -> None:
         ax, ay, az = (v / P.ACCEL_LSB_PER_G for v in tm.accel)
@@ -580,6 +595,7 @@ class HardwareNeckEnv(gym.Env):
         late = now - deadline
         if late > self.dt:
             self._t_start += late  # re-anchor: a slow policy stretches the episode, not the physics
+        self._drain_after_stall()
         with self._lock:
             tm, age = self._last, time.monotonic() - self._last_host_t
             on_ms, span_ms = self._on_ms.copy(), self._span_ms
