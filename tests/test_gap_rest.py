@@ -56,6 +56,29 @@ def test_bent_and_warm_starts_are_found_and_measured(tmp_path):
     assert SLACK * REST.tilt_deg < 2.0
 
 
+def _shift_rest(path, dx_deg: float) -> None:
+    """Move a recording's whole tilt reading by ``dx_deg`` along x: where its rest reads."""
+    r = read_recording(path)
+    ph = np.radians(r.phi_deg)
+    x, y = r.theta_deg * np.cos(ph) + dx_deg, r.theta_deg * np.sin(ph)
+    cols = {"t": r.t, "i1": r.i1, "i2": r.i2, "i3": r.i3, "theta_deg": np.hypot(x, y),
+            "phi_deg": np.degrees(np.arctan2(y, x)) % 360.0}
+    write_recording(path, cols)
+
+
+def test_a_slowly_moving_rest_is_not_a_start_away_from_rest(tmp_path):
+    """Springs taking a permanent set, or an IMU bias drifting, move the rest reading through
+    the session (here 3 deg from first to last of 8 recordings, 2.5 x the flagging threshold
+    end to end): no recording is flagged for that; a bent start on top of it still is."""
+    ds_dir = tmp_path / "ds"
+    generate(ds_dir, [], seed=5, n_recordings=8, duration_s=10.0, temperatures=False)
+    for k in range(8):
+        _shift_rest(ds_dir / f"rec_{k + 1:02d}.csv", 3.0 * k / 7)
+    assert not_at_rest(read_dataset(ds_dir)) == []
+    _bend_start(ds_dir / "rec_06.csv", theta0_deg=6.0, phi_deg=240.0)
+    assert [b["recording"] for b in not_at_rest(read_dataset(ds_dir))] == ["rec_06"]
+
+
 def test_rest_reading_from_meta_json(tmp_path):
     """A dataset the rig's protocol wrote names its rest reading: a start there is at rest even
     when the IMU reads a tilt upright (a tilted mount), and the median is not needed."""

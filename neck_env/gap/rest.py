@@ -6,8 +6,13 @@ warm, from the one before would leave a residual no catalogued effect explains -
 gap, or a false ``unexplained``. :func:`not_at_rest` finds them from the data alone:
 
 * **tilt**: the mean tilt vector over the first ``window_s`` against the dataset's rest reading
-  (``meta.json``'s ``rest_tilt_deg`` when the rig's ``protocol`` command wrote it, else the
-  median of the recordings' starts: most recordings of a protocol start at rest);
+  (``meta.json``'s ``rest_tilt_deg`` when the rig's ``protocol`` command wrote it, else read
+  from the recordings' starts: most recordings of a protocol start at rest). Read from the
+  starts, the rest reading may move slowly through the session -- springs taking a permanent
+  set as they fatigue, an IMU whose bias drifts -- so it is a robust straight line through the
+  starts in file order (Cauchy loss at the rig's own criterion: a bent start weighs almost
+  nothing), not one value: a slow move of the rest is not a start away from rest, and the
+  diagnosis has its own account of a moving rest reading (drift nuisance, ``unexplained``);
 * **temperature** (measured ``T1..T3`` only, never an estimate): the hottest spring over the
   first ``window_s`` against ``meta.json``'s ``ambient_C`` (else the coolest start).
 
@@ -21,6 +26,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from ..experiments import REST, RestCriterion
 from ..recording import Dataset, Recording
@@ -29,6 +35,7 @@ __all__ = ["not_at_rest", "without", "rest_reading", "SLACK", "WINDOW_S"]
 
 SLACK = 2.0
 WINDOW_S = 0.5
+MIN_FOR_TREND = 5  # fewer starts: one rest reading (their median); a line through 3-4 bends too easily
 
 
 def _start(rec: Recording, window_s: float) -> np.ndarray:
@@ -43,22 +50,35 @@ def _start_tilt(rec: Recording, window_s: float) -> np.ndarray:
     return np.array([np.mean(th * np.cos(ph)), np.mean(th * np.sin(ph))])
 
 
-def rest_reading(ds: Dataset, window_s: float = WINDOW_S) -> tuple[np.ndarray, str]:
-    """The dataset's rest tilt vector (deg) and where it comes from."""
+def rest_reading(ds: Dataset, window_s: float = WINDOW_S,
+                 criterion: RestCriterion = REST) -> tuple[np.ndarray, str]:
+    """The rest tilt vector (deg) at each recording's start, (R, 2), and where it comes from."""
+    R = len(ds.recordings)
     given = ds.meta.get("rest_tilt_deg")
     if given is not None:
         v = np.asarray(given, float)
         if v.shape == (2,) and np.all(np.isfinite(v)):
-            return v, "meta.json rest_tilt_deg"
+            return np.tile(v, (R, 1)), "meta.json rest_tilt_deg"
     starts = np.array([_start_tilt(r, window_s) for r in ds.recordings])
-    return np.median(starts, axis=0), "median of the recordings' starts"
+    median = np.median(starts, axis=0)
+    if R < MIN_FOR_TREND:
+        return np.tile(median, (R, 1)), "median of the recordings' starts"
+    u = np.linspace(-0.5, 0.5, R)[:, None]  # file order; recorded time is not in the format
+
+    def misfit(p: np.ndarray) -> np.ndarray:
+        return (starts - (p[:2] + u * p[2:])).ravel()
+
+    # from the median with no slope: the bent starts begin (and stay) far out on the loss's tail
+    fit = least_squares(misfit, np.r_[median, 0.0, 0.0], loss="cauchy",
+                        f_scale=criterion.tilt_deg)
+    return fit.x[:2] + u * fit.x[2:], "the recordings' starts, a slowly moving rest allowed"
 
 
 def not_at_rest(ds: Dataset, criterion: RestCriterion = REST, window_s: float = WINDOW_S,
                 slack: float = SLACK) -> list[dict]:
     """The recordings of ``ds`` that do not start at rest, in dataset order: each
     ``{"recording", "tilt_off_deg", "temperature_excess_K" (None without T columns), "why"}``."""
-    rest, source = rest_reading(ds, window_s)
+    rest, source = rest_reading(ds, window_s, criterion)
     warm: list[float | None] = []
     for r in ds.recordings:
         if r.temperatures_C is None or not np.any(np.isfinite(r.temperatures_C[_start(r, window_s)])):
@@ -70,8 +90,8 @@ def not_at_rest(ds: Dataset, criterion: RestCriterion = REST, window_s: float = 
     if ambient is None and known:
         ambient = min(known)
     out = []
-    for r, w in zip(ds.recordings, warm):
-        off = float(np.hypot(*(_start_tilt(r, window_s) - rest)))
+    for r, w, rest_r in zip(ds.recordings, warm, rest):
+        off = float(np.hypot(*(_start_tilt(r, window_s) - rest_r)))
         excess = None if (w is None or ambient is None) else w - float(ambient)
         why = []
         if off > slack * criterion.tilt_deg:
