@@ -12,7 +12,8 @@
    the dataset is taken out as a nuisance.
 3. **Attribution** (``_attribute``): for every catalogued effect and every generic structural
    discrepancy (``model.STRUCTURE``), the baseline + it refitted on the same recordings (effects
-   started from a batched scan of their range), all in lockstep; each compared on the held-out
+   started from a batched scan of their range, a draft's start profiled over the dataset:
+   ``_profiled``), all in lockstep; each compared on the held-out
    recordings with the baseline (``compare`` -> ``Comparison``).
 4. **Decision** (``_decide``): an effect is responsible (``responsible``) when it removes at
    least ``MIN_REL`` and ``MIN_ABS_DEG`` of the held-out gap and passes a test -- the F test
@@ -483,13 +484,13 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
                     base_effects: list[str], names: Sequence[str], rng: np.random.Generator,
                     profile: int = DRAFT_PROFILE) -> dict[str, list[dict[str, float]]]:
     """``scan_starts``, best first, and for a convection change also the best scanned draft up
-    (gain > 1) and down at each of ``profile`` starts spread over the dataset, to be fitted in
-    full. A draft's start is discrete and the fit cannot move it; judged by one evaluation on
-    the baseline refitted without it, whose compromise (h, and C_A, EI, the transformation
-    temperatures with it) is far from either side of the draft, the scan can rank every right
-    start below a wrong one (``_profiled`` fits these) (own wide-baseline suite, a x2 draft from recording 7: the
-    scan chose a weakening from recording 14; fitted from recording 5-8 the cost fell 20-fold
-    and the held-out gap from 0.64 to 0.07-0.09 deg)."""
+    (gain > 1) and down at each of ``profile`` starts spread over the dataset, for
+    ``_profiled`` to fit. A draft's start is discrete and the fit cannot move it. Judged by one
+    evaluation on the baseline refitted without it -- a compromise in h, C_A, EI and the
+    transformation temperatures, far from either side of the draft -- the scan can rank every
+    right start below a wrong one (own wide suite, a x2 draft from recording 7: the scan chose
+    a weakening from recording 14; fitted from recordings 5-8 the cost fell 20-fold and the
+    held-out gap from 0.64 to 0.07-0.09 deg)."""
     settings, owners = [], []
     for name in names:
         specs = EFFECT_SPECS[name]
@@ -503,12 +504,12 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
             owners.append((name, vals))
     preds = model.predict(settings)
     best: dict[str, tuple[float, dict]] = {}
-    by_start: dict[tuple, tuple[float, dict]] = {}
+    by_start: dict[tuple, tuple[float, dict]] = {}  # (effect, draft start, up): best scanned
     for (name, vals), p in zip(owners, preds):
         cost = float(np.mean(fitter.data_res(p) ** 2))
         if name not in best or cost < best[name][0]:
             best[name] = (cost, vals)
-        if DRAFT_FROM in vals and vals[DRAFT_FROM] < model.data.n_rec:
+        if profile and DRAFT_FROM in vals and vals[DRAFT_FROM] < model.data.n_rec:
             key = (name, int(vals[DRAFT_FROM]), vals.get("convection_change.gain", 1.0) > 1.0)
             if key not in by_start or cost < by_start[key][0]:
                 by_start[key] = (cost, vals)

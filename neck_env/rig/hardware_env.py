@@ -78,7 +78,6 @@ def _warm_up_compiled(estimate: ThermalEstimate) -> None:
     estimate.warm_up()
 
 
-
 def thermistor_columns(mask: int) -> list[tuple[int, str]]:
     """(muscle index, column) of the fitted thermistors: ``T1..T3`` with all three fitted (the
     recording format reads spring temperatures only as a complete set), else ``Tk_ntc`` for
@@ -86,6 +85,7 @@ def thermistor_columns(mask: int) -> list[tuple[int, str]]:
     if mask == 0b111:
         return list(enumerate(THERMISTOR_COLUMNS))
     return [(k, f"T{k + 1}_ntc") for k in range(3) if mask >> k & 1]
+
 
 class HardwareNeckEnv(gym.Env):
     """NeckTrack on the physical neck (Arduino UNO firmware, ``firmware/``).
