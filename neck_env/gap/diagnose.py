@@ -793,10 +793,11 @@ def _calibrate(run: _Run) -> _Baseline:
     nominal = fit_baseline(model, fitter, run.rng, max(run.max_iter, 20))
     run.lap("nominal_fit_s")
     plain = nominal
-    # A reading at rest that drifts steadily through the dataset is something no catalogued
-    # effect produces (they all leave the upright reading alone from one recording to the
-    # next). Left in, its mean would be blamed on a constant sensor effect (imu_misalignment);
-    # so the drift is fitted as a nuisance by every candidate, and reported as unexplained.
+    # A reading at rest that drifts steadily through the dataset is something almost no
+    # catalogued effect produces (only fatigue's unequal permanent set moves the upright
+    # reading between recordings). Left in, its mean would be blamed on a constant sensor
+    # effect (imu_misalignment); so the drift is fitted as a nuisance by every candidate, and
+    # reported as unexplained unless the verdict model holds the rest reading without it.
     drift_found = None
     full_plain = model.predict_full([nominal.setting()])[0]  # also localized at the end
     st = rest_drift_stats(data, full_plain)
@@ -980,15 +981,22 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                        f"{UNEXPLAINED_REL:.0%} of the RMS tilt {scale:.1f} deg)")
     ro, rest_spread, rest_drift, rest_r2 = rest_drift_stats(data, full_cor)
     if base.drift_found:
-        # the nuisance has taken the drift out of the final residual: report it as first seen
+        # the nuisance has taken the drift out of the final residual: report it as first seen,
+        # unless the verdict's effects move the rest reading themselves (fatigue's unequal
+        # permanent set does): then it is judged on the verdict model fitted without it
         ro, rest_spread, rest_drift, rest_r2 = base.drift_found
+        if verdict:
+            ro, rest_spread, rest_drift, rest_r2 = _rest_without_nuisance(run, all_fitter, final,
+                                                                          base.drift_found)
     if not math.isnan(rest_spread):
         if rest_spread > UNEXPLAINED_REST_DEG:
             what = (f"drifts steadily through the dataset ({rest_drift:.2f} deg from first to "
                     f"last recording, R^2 = {rest_r2:.2f})" if rest_r2 > DRIFT_R2
                     else f"changes between recordings by {rest_spread:.2f} deg RMS")
-            reasons.append(f"the tilt read at rest {what}; no catalogued effect moves the rest "
-                           f"reading from recording to recording")
+            reasons.append(f"the tilt read at rest {what}; "
+                           + ("the verdict's effects do not move it so" if verdict else
+                              "no effect found here moves the rest reading from recording to "
+                              "recording"))
     best_null = att.best_null
     if att.rival and not verdict:
         nc = att.null_cmp[best_null.name]
@@ -1008,6 +1016,24 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                      full={"nominal": full_nom, "corrected": full_cor,
                            "nominal_heldout": base.full_plain}, timing=run.timing,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp)
+
+
+def _rest_without_nuisance(run: _Run, fitter: Fitter, final: Candidate,
+                           first_seen: tuple) -> tuple[np.ndarray, float, float, float]:
+    """``rest_drift_stats`` of the verdict model refitted (all recordings) without the drift
+    nuisance, when that model holds the rest reading where it is seen (spread at most
+    ``UNEXPLAINED_REST_DEG``); else the drift as first seen."""
+    keep = [s for s in final.specs if not s.key.startswith("drift_")]
+    bare = Candidate(final.name, final.effects, keep, dict(final.fixed))
+    bare.u = bare.u_from(final.values)
+    fitter.run([bare], max_iter=run.max_iter)
+    run.lap("rest_check_fit_s")
+    st = rest_drift_stats(run.data, run.model.predict_full([bare.setting()])[0])
+    if not math.isnan(st[1]) and st[1] <= UNEXPLAINED_REST_DEG:
+        run.say(f"the rest reading's drift is the verdict's own: without the nuisance its rest "
+                f"offsets spread {st[1]:.2f} deg")
+        return st
+    return first_seen
 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,

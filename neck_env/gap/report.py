@@ -153,7 +153,8 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                            f"measured tilt), or the tilt read at rest changing between recordings "
                            f"by > {D.UNEXPLAINED_REST_DEG} deg RMS (a steady drift, R^2 > {D.DRIFT_R2}, is "
                            f"fitted as a nuisance by every candidate so that no effect is blamed "
-                           f"for its mean)",
+                           f"for its mean, and is the verdict's own when the verdict model "
+                           f"without the nuisance holds the rest within that spread)",
             "phases": "heating: a muscle commanded on; cooling: all off within 20 s of the last "
                       "switch-off; rest: otherwise",
         },
