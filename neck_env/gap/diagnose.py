@@ -20,7 +20,8 @@
    with a consistent improvement, or the paired test (every held-out recording improved and the
    5 s block t > ``T_CRIT``; ``significant``) -- and beats the best structural discrepancy
    (``beats_structure``: by the same test when that discrepancy is itself significant, else by
-   the margin). Then a second effect on top of the first; with none responsible but a large
+   the margin). Then a second effect on top of the first (and on top of each responsible
+   single the first does not significantly beat); with none responsible but a large
    systematic gap, pairs of the best singles; and effects ``ambiguous`` with a baseline shift.
 5. **Conclusion** (``_conclude``): the final model (baseline + verdict) refitted on all
    recordings; parameter uncertainties and identifiability from its Jacobian; localization of
@@ -55,6 +56,7 @@ BLOCK_S = 5.0
 MIN_REC_CONSISTENT = 3  # ... or improved in every one of at least this many held-out recordings
 PAIR_TOP = 3  # pairs printed in the log
 PAIR_SEARCH = 3  # with no significant single but a large gap: pairs among this many best singles
+PAIR_TIED = 2  # forward steps also from this many responsible singles tied with the best
 UNEXPLAINED_ABS_DEG = 0.3  # systematic held-out residual (after the final model) above this
 UNEXPLAINED_REL = 0.05  # ... and above this fraction of the RMS measured tilt
 UNEXPLAINED_REST_DEG = 0.3  # rest-offset changing between recordings by more than this (RMS)
@@ -885,17 +887,28 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
     pair_cmp: dict[str, Comparison] = {}
     if sig:
         # forward step: the best single plus every other effect, started from a scan of the
-        # second effect on top of the first one's fit
-        verdict_c = sig[0]
-        first = verdict_c.effects[0]
-        others = [n for n in fx.CATALOGUE if n != first]
-        starts2 = scan_starts(model, fitter, verdict_c.setting(), [first], others, run.rng)
-        for n in others:
-            vals = dict(verdict_c.setting())
-            vals.update(starts2[n])
-            pairs.append(effect_candidate(model, [first, n], {}, vals))
-        # each pair against its first member (the verdict so far)
-        single = verdict_c
+        # second effect on top of the first one's fit; likewise from each responsible single
+        # the best one does not significantly beat (when two effects of a pair each explain
+        # about as much as a third, wrong one, the step from that one alone never tries the
+        # true pair)
+        verdict_c = single = sig[0]
+        first = single.effects[0]
+        tied = [c for c in sig[1:]
+                if not significant(compare(data, c.pred, single.pred, run.hold_mask))][:PAIR_TIED]
+        seen: set[frozenset[str]] = set()
+        for base in [single] + tied:
+            b = base.effects[0]
+            others = [n for n in fx.CATALOGUE if n != b and frozenset((b, n)) not in seen]
+            seen.update(frozenset((b, n)) for n in others)
+            starts2 = scan_starts(model, fitter, base.setting(), [b], others, run.rng)
+            for n in others:
+                vals = dict(base.setting())
+                vals.update(starts2[n])
+                pairs.append(effect_candidate(model, [b, n], {}, vals))
+        if tied:
+            say(f"  {', '.join(c.effects[0] for c in tied)} about as good as {first}: "
+                f"pairs from {'each' if len(tied) > 1 else 'it'} too")
+        # each pair against the best single (the verdict so far)
         pair_cmp = _fit_and_judge_pairs(fitter, data, pairs, lambda p: single, nominal,
                                         run.hold_rec, run.hold_mask, run.max_iter, significant,
                                         best_null, att.rival)
