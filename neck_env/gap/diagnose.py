@@ -965,6 +965,14 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
     all_fitter.run([final_nominal, final] if verdict else [final_nominal], max_iter=run.max_iter)
     if not verdict:
         final = final_nominal
+    rest_own = None
+    if base.drift_found and verdict:
+        # the nuisance took a drift of the rest reading out of every fit; when the verdict's
+        # effects move the rest reading themselves (fatigue's unequal permanent set does), the
+        # drift is theirs, and their parameters are the ones fitted without the nuisance
+        rest_own, bare = _rest_without_nuisance(run, all_fitter, final)
+        if rest_own is not None:
+            final = bare
     calibration = calibration_summary(all_fitter, final_nominal)
     if verdict:
         calibration["corrected"] = calibration_summary(all_fitter, final)
@@ -993,14 +1001,9 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                        f"(> {sys_tol:.2f} deg: {UNEXPLAINED_ABS_DEG} deg or "
                        f"{UNEXPLAINED_REL:.0%} of the RMS tilt {scale:.1f} deg)")
     ro, rest_spread, rest_drift, rest_r2 = rest_drift_stats(data, full_cor)
-    if base.drift_found:
-        # the nuisance has taken the drift out of the final residual: report it as first seen,
-        # unless the verdict's effects move the rest reading themselves (fatigue's unequal
-        # permanent set does): then it is judged on the verdict model fitted without it
+    if base.drift_found and rest_own is None:
+        # the nuisance has taken the drift out of the final residual: report it as first seen
         ro, rest_spread, rest_drift, rest_r2 = base.drift_found
-        if verdict:
-            ro, rest_spread, rest_drift, rest_r2 = _rest_without_nuisance(run, all_fitter, final,
-                                                                          base.drift_found)
     if not math.isnan(rest_spread):
         if rest_spread > UNEXPLAINED_REST_DEG:
             what = (f"drifts steadily through the dataset ({rest_drift:.2f} deg from first to "
@@ -1031,11 +1034,11 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp)
 
 
-def _rest_without_nuisance(run: _Run, fitter: Fitter, final: Candidate,
-                           first_seen: tuple) -> tuple[np.ndarray, float, float, float]:
-    """``rest_drift_stats`` of the verdict model refitted (all recordings) without the drift
-    nuisance, when that model holds the rest reading where it is seen (spread at most
-    ``UNEXPLAINED_REST_DEG``); else the drift as first seen."""
+def _rest_without_nuisance(run: _Run, fitter: Fitter,
+                           final: Candidate) -> tuple[tuple | None, Candidate]:
+    """The verdict model refitted (all recordings) without the drift nuisance, and its
+    ``rest_drift_stats`` when it holds the rest reading where it is seen (spread at most
+    ``UNEXPLAINED_REST_DEG``), else None."""
     keep = [s for s in final.specs if not s.key.startswith("drift_")]
     bare = Candidate(final.name, final.effects, keep, dict(final.fixed))
     bare.u = bare.u_from(final.values)
@@ -1045,8 +1048,8 @@ def _rest_without_nuisance(run: _Run, fitter: Fitter, final: Candidate,
     if not math.isnan(st[1]) and st[1] <= UNEXPLAINED_REST_DEG:
         run.say(f"the rest reading's drift is the verdict's own: without the nuisance its rest "
                 f"offsets spread {st[1]:.2f} deg")
-        return st
-    return first_seen
+        return st, bare
+    return None, bare
 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,
