@@ -45,8 +45,8 @@ from ..recording import Dataset
 from . import localize
 from .fit import Candidate, Fitter, covariance
 from .model import (DRAFT_FROM, EFFECT_SPECS, SCANNED, STRUCTURE, SUPPLY_OFF_V, Model, ParamSpec,
-                    Prediction, Prepared, drift_specs, prepare, residual_parts, split_key,
-                    switched_off, tilt_vec)
+                    Prediction, Prepared, drift_specs, is_drift_key, prepare, residual_parts,
+                    split_key, switched_off, tilt_vec)
 
 ALPHA = 0.01  # held-out F test level
 T_CRIT = 2.0  # held-out paired t over 5 s blocks (consistency, not the main test)
@@ -553,7 +553,7 @@ def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequenc
             continue
         moved = []
         for spec in model.nominal:
-            if spec.prior_sigma is None or spec.key.startswith("drift_") or spec.key not in c.values:
+            if spec.prior_sigma is None or is_drift_key(spec.key) or spec.key not in c.values:
                 continue
             a, b = nominal.values[spec.key], c.values[spec.key]
             d = abs(spec.prior_residual(a) - spec.prior_residual(b))
@@ -965,20 +965,20 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
     all_fitter.run([final_nominal, final] if verdict else [final_nominal], max_iter=run.max_iter)
     if not verdict:
         final = final_nominal
-    rest_own = None
+    drift_is_own = False
     if base.drift_found and verdict:
         # the nuisance took a drift of the rest reading out of every fit; when the verdict's
         # effects move the rest reading themselves (fatigue's unequal permanent set does), the
         # drift is theirs, and their parameters are the ones fitted without the nuisance
-        rest_own, bare = _rest_without_nuisance(run, all_fitter, final)
-        if rest_own is not None:
-            final = bare
+        bare = _holding_rest_without_nuisance(run, all_fitter, final)
+        if bare is not None:
+            final, drift_is_own = bare, True
     calibration = calibration_summary(all_fitter, final_nominal)
     if verdict:
         calibration["corrected"] = calibration_summary(all_fitter, final)
     run.lap("final_fit_s")
     # what is left to explain includes a drift fitted as a nuisance: predict without it
-    shown = [{k: v for k, v in c.setting().items() if not k.startswith("drift_")}
+    shown = [{k: v for k, v in c.setting().items() if not is_drift_key(k)}
              for c in (final_nominal, final)]
     full_nom, full_cor = model.predict_full(shown)
     # localization of the plain nominal refit: a drift nuisance must not hide where the gap is
@@ -1001,7 +1001,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                        f"(> {sys_tol:.2f} deg: {UNEXPLAINED_ABS_DEG} deg or "
                        f"{UNEXPLAINED_REL:.0%} of the RMS tilt {scale:.1f} deg)")
     ro, rest_spread, rest_drift, rest_r2 = rest_drift_stats(data, full_cor)
-    if base.drift_found and rest_own is None:
+    if base.drift_found and not drift_is_own:
         # the nuisance has taken the drift out of the final residual: report it as first seen
         ro, rest_spread, rest_drift, rest_r2 = base.drift_found
     if not math.isnan(rest_spread):
@@ -1034,12 +1034,12 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp)
 
 
-def _rest_without_nuisance(run: _Run, fitter: Fitter,
-                           final: Candidate) -> tuple[tuple | None, Candidate]:
-    """The verdict model refitted (all recordings) without the drift nuisance, and its
-    ``rest_drift_stats`` when it holds the rest reading where it is seen (spread at most
-    ``UNEXPLAINED_REST_DEG``), else None."""
-    keep = [s for s in final.specs if not s.key.startswith("drift_")]
+def _holding_rest_without_nuisance(run: _Run, fitter: Fitter,
+                                   final: Candidate) -> Candidate | None:
+    """The verdict model refitted (all recordings) without the drift nuisance when it holds the
+    rest reading where it is seen (rest offsets spread at most ``UNEXPLAINED_REST_DEG``), else
+    None."""
+    keep = [s for s in final.specs if not is_drift_key(s.key)]
     bare = Candidate(final.name, final.effects, keep, dict(final.fixed))
     bare.u = bare.u_from(final.values)
     fitter.run([bare], max_iter=run.max_iter)
@@ -1048,8 +1048,8 @@ def _rest_without_nuisance(run: _Run, fitter: Fitter,
     if not math.isnan(st[1]) and st[1] <= UNEXPLAINED_REST_DEG:
         run.say(f"the rest reading's drift is the verdict's own: without the nuisance its rest "
                 f"offsets spread {st[1]:.2f} deg")
-        return st, bare
-    return None, bare
+        return bare
+    return None
 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,

@@ -148,6 +148,11 @@ def drift_specs() -> list[ParamSpec]:
             for a in ("x", "y")]
 
 
+def is_drift_key(key: str) -> bool:
+    """A parameter of the drift nuisance (``drift_specs``), not of the rig or an effect."""
+    return key.startswith("drift_")
+
+
 def drift_offset(setting: Mapping[str, float], axis: str, t_cum: np.ndarray) -> np.ndarray | float:
     rate = float(setting.get(f"drift_{axis}_deg_per_100s", 0.0))
     return rate * t_cum / DRIFT_PER_S if rate else 0.0
