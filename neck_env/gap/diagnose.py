@@ -965,22 +965,22 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
     all_fitter.run([final_nominal, final] if verdict else [final_nominal], max_iter=run.max_iter)
     if not verdict:
         final = final_nominal
-    drift_is_own = False
-    if base.drift_found and verdict:
-        # the nuisance took a drift of the rest reading out of every fit; when the verdict's
-        # effects move the rest reading themselves (fatigue's unequal permanent set does), the
-        # drift is theirs, and their parameters are the ones fitted without the nuisance
-        bare = _holding_rest_without_nuisance(run, all_fitter, final)
-        if bare is not None:
-            final, drift_is_own = bare, True
+    # the nuisance took a drift of the rest reading out of every fit; when the verdict's effects
+    # move the rest reading themselves (fatigue's unequal permanent set does), the drift is
+    # theirs, and their parameters are the ones fitted without the nuisance: refit so, and
+    # predict it in the same batch as the final models
+    bare = _without_nuisance(run, all_fitter, final) if base.drift_found and verdict else None
+    # what is left to explain includes a drift fitted as a nuisance: predict without it
+    shown = [{k: v for k, v in c.setting().items() if not is_drift_key(k)}
+             for c in (final_nominal, final, *([bare] if bare is not None else []))]
+    full_nom, full_cor, *full_bare = model.predict_full(shown)
+    drift_is_own = bool(full_bare) and _holds_rest(run, full_bare[0])
+    if drift_is_own:
+        final, full_cor = bare, full_bare[0]
     calibration = calibration_summary(all_fitter, final_nominal)
     if verdict:
         calibration["corrected"] = calibration_summary(all_fitter, final)
     run.lap("final_fit_s")
-    # what is left to explain includes a drift fitted as a nuisance: predict without it
-    shown = [{k: v for k, v in c.setting().items() if not is_drift_key(k)}
-             for c in (final_nominal, final)]
-    full_nom, full_cor = model.predict_full(shown)
     # localization of the plain nominal refit: a drift nuisance must not hide where the gap is
     res_nom = full_residuals(data, base.full_plain)
     loc = localize.decompose(res_nom)
@@ -1034,22 +1034,25 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp)
 
 
-def _holding_rest_without_nuisance(run: _Run, fitter: Fitter,
-                                   final: Candidate) -> Candidate | None:
-    """The verdict model refitted (all recordings) without the drift nuisance when it holds the
-    rest reading where it is seen (rest offsets spread at most ``UNEXPLAINED_REST_DEG``), else
-    None."""
+def _without_nuisance(run: _Run, fitter: Fitter, final: Candidate) -> Candidate:
+    """The verdict model refitted (all recordings) without the drift nuisance."""
     keep = [s for s in final.specs if not is_drift_key(s.key)]
     bare = Candidate(final.name, final.effects, keep, dict(final.fixed))
     bare.u = bare.u_from(final.values)
     fitter.run([bare], max_iter=run.max_iter)
     run.lap("rest_check_fit_s")
-    st = rest_drift_stats(run.data, run.model.predict_full([bare.setting()])[0])
-    if not math.isnan(st[1]) and st[1] <= UNEXPLAINED_REST_DEG:
-        run.say(f"the rest reading's drift is the verdict's own: without the nuisance its rest "
-                f"offsets spread {st[1]:.2f} deg")
-        return bare
-    return None
+    return bare
+
+
+def _holds_rest(run: _Run, full_pred: list[dict]) -> bool:
+    """The model fitted without the drift nuisance holds the rest reading where it is seen:
+    its rest offsets spread at most ``UNEXPLAINED_REST_DEG``."""
+    spread = rest_drift_stats(run.data, full_pred)[1]
+    if math.isnan(spread) or spread > UNEXPLAINED_REST_DEG:
+        return False
+    run.say(f"the rest reading's drift is the verdict's own: without the nuisance its rest "
+            f"offsets spread {spread:.2f} deg")
+    return True
 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,
