@@ -1,27 +1,33 @@
-"""Augmented Random Search (Mania, Guy and Recht 2018, ARS V2-t) of a linear residual on a
-controller: the PID (``base: pid``, the default) or bang-bang (``base: bang_bang``).
+"""Augmented Random Search (Mania, Guy and Recht 2018, ARS V2-t) of a small policy for
+``NeckTrack-v1``: the muscle-shared law (``policy: muscle``, ``agents.muscle_policy``; the shipped
+v1 policies) or a linear residual on a controller (``policy: residual``: the PID, ``base: pid``,
+or bang-bang, ``base: bang_bang``).
 
-    python -m agents.ars agents/configs/ars_residual.yml --ship agents/policies/ars_residual_v1
+    python -m agents.ars agents/configs/ars_muscle.yml --ship agents/policies/ars_muscle_v1
 
-Why ARS here: on ``NeckTrack-v1`` what the PID does badly is spending its 900 J -- running out
-at 55 s costs the last seconds of the episode -- and that consequence comes up to a minute after
-the currents that caused it. ARS scores whole episodes, so the credit for an early saving is
-assigned exactly, and its objective can be the benchmark's own: the mean over episodes of the
-squared tracking error (the pooled RMSE squared). Every candidate of an iteration runs on the
+Why ARS here: on ``NeckTrack-v1`` what decides the score is how the 900 J are spent -- running
+out at 55 s costs the last seconds of the episode -- and that consequence comes up to a minute
+after the currents that caused it. ARS scores whole episodes, so the credit for an early saving
+is assigned exactly, and its objective can be the benchmark's own: the mean over episodes of the
+squared tracking error (the pooled RMSE squared), plus, if the config says so, a cost per step
+spent more than 2 deg off (``outside_weight_deg2``). Every candidate of an iteration runs on the
 same episodes (common random numbers), so candidates are compared paired, as the benchmark
-compares controllers.
+compares controllers; the episodes cycle through the benchmark's suites the config names
+(``train_suites``: nominal, randomized plant, catalogue effects).
 
-The policy: ``r = clip(W f_norm + b, -1, 1)`` with ``f`` the residual features of
-``agents.residual`` (observation, base currents, error integral, elapsed fraction) normalized by
-running statistics (ARS V2), and the current ``clip(base + scale_A r, 0, i_max)`` (relay mode:
-sigma-delta encoded, as the heuristics do). W = 0, b = 0 is the base controller. All candidates x episodes of
-an iteration advance together in one natively batched env.
+The policies: the muscle law ``a_k = sigmoid(3/deg (p_k - 1 deg) + w . phi_k)`` (w = 0: a
+smoothed bang-bang; see ``agents.muscle_policy``), or the residual ``r = clip(W f_norm + b, -1,
+1)`` with ``f`` the features of ``agents.residual`` normalized by running statistics (ARS V2)
+and the current ``clip(base + scale_A r, 0, i_max)`` (W = 0, b = 0: the base controller).
+Relay mode: sigma-delta encoded, as the heuristics do. All candidates x episodes of an iteration
+advance together in natively batched envs (one per suite group).
 
 Outputs (``--out``, default ``runs/ars_<name>``): ``policy.zip`` (the weights, an npz archive:
-no pickles) + ``policy.json`` (``algo: "ARS"``, the residual, observation statistics, the
+no pickles) + ``policy.json`` (``algo: "ARS"``, the policy kind, observation statistics, the
 config, provenance) for ``agents.policy.DeployedPolicy``; ``curve.csv`` / ``curve.png``
-(validation RMSE of the centre policy against the base's on the same episodes, per iteration);
-``--ship PATH`` copies the policy and its curve there. Progress: one line per iteration.
+(validation RMSE and time within 2 deg of the centre policy against the untrained one on the
+same episodes, per validated iteration); ``--ship PATH`` copies the policy and its curve there.
+Progress: one line per iteration.
 """
 
 from __future__ import annotations
@@ -35,12 +41,18 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import yaml
 
+from .muscle_policy import FEATURES as MUSCLE_FEATURE_NAMES
+from .muscle_policy import N_FEATURES as MUSCLE_FEATURES
+from .muscle_policy import MusclePolicy, MuscleWeights
 from .residual import BASES, N_FEATURES, ControllerResidual
+
+POLICIES = ("residual", "muscle")
+WITHIN_DEG = 2.0  # the benchmark's "within 2 deg"
 
 
 @dataclass(frozen=True)
@@ -49,6 +61,9 @@ class ARSConfig:
 
     env_id: str = "NeckTrack-v1"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    # "residual": a linear residual on ``base``; "muscle": the muscle-shared law
+    # (agents.muscle_policy; base and scale_A unused)
+    policy: str = "residual"
     base: str = "pid"  # the controller the residual corrects: "pid" or "bang_bang"
     scale_A: float = 3.0  # residual span, A
     iterations: int = 40
@@ -61,6 +76,11 @@ class ARSConfig:
     validation_seeds: tuple[int, ...] = tuple(range(5000, 5016))  # not the benchmark's 1000+
     validate_every: int = 5
     seed: int = 0
+    # objective per step: e^2 + outside_weight_deg2 * [e > 2 deg] (0: the benchmark's RMSE^2
+    # alone; > 0 also buys time within 2 deg, which RMSE trades away for faster transients)
+    outside_weight_deg2: float = 0.0
+    # the benchmark suites the training episodes cycle through (domain randomization)
+    train_suites: tuple[str, ...] = ("nominal",)
 
     @classmethod
     def load(cls, path: Path) -> "ARSConfig":
@@ -68,9 +88,19 @@ class ARSConfig:
         unknown = set(data) - {f for f in cls.__dataclass_fields__}
         if unknown:
             raise SystemExit(f"{path}: unknown key(s) {sorted(unknown)}")
-        if "validation_seeds" in data:
-            data["validation_seeds"] = tuple(data["validation_seeds"])
+        for key in ("validation_seeds", "train_suites"):
+            if key in data:
+                data[key] = tuple(data[key])
         cfg = cls(**data)
+        if cfg.policy not in POLICIES:
+            raise SystemExit(f"{path}: policy {cfg.policy!r} is not one of {POLICIES}")
+        from .benchmark import SUITES
+
+        bad = [x for x in cfg.train_suites if x not in SUITES]
+        if bad or not cfg.train_suites:
+            raise SystemExit(f"{path}: train_suites {list(cfg.train_suites)}: each one of {SUITES}")
+        if cfg.outside_weight_deg2 < 0:
+            raise SystemExit(f"{path}: outside_weight_deg2 must be >= 0")
         if cfg.base not in BASES:
             raise SystemExit(f"{path}: base {cfg.base!r} is not one of {sorted(BASES)}")
         if not (1 <= cfg.top_directions <= cfg.directions):
@@ -137,114 +167,247 @@ class RunningStats:
         return np.where(s > 1e-8, s, 1.0)
 
 
+def _groups(overrides: Sequence[Mapping[str, Any]]) -> list[tuple[dict[str, Any], list[int]]]:
+    """Episode indices grouped by their simulation overrides (one batched env per group)."""
+    out: dict[str, tuple[dict[str, Any], list[int]]] = {}
+    for i, o in enumerate(overrides):
+        out.setdefault(json.dumps(o, sort_keys=True), (dict(o), []))[1].append(i)
+    return list(out.values())
+
+
+def play(task_kwargs: dict[str, Any], n_candidates: int, seeds: Sequence[int],
+         make_agent: Callable[[int, np.ndarray], Any],
+         overrides: Sequence[Mapping[str, Any]] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Every candidate on every episode, candidates x episodes of one override advancing together
+    in one natively batched env. ``make_agent(n, candidate_of_rig)`` returns an object with
+    ``act(obs (n, 8)) -> env actions (n, 3)`` (fresh per env: its episodes start now).
+    Returns per candidate and episode (C, E) the mean squared tracking error (deg^2) and the
+    fraction of steps more than ``WITHIN_DEG`` off."""
+    from neck_env.envs import NeckTrackVectorEnv
+
+    E = len(seeds)
+    overrides = [{}] * E if overrides is None else list(overrides)
+    if len(overrides) != E:
+        raise ValueError(f"{len(overrides)} overrides for {E} episodes")
+    mse, outside = np.zeros((n_candidates, E)), np.zeros((n_candidates, E))
+    for over, idx in _groups(overrides):
+        n = n_candidates * len(idx)
+        venv = NeckTrackVectorEnv(num_envs=n, **task_kwargs, **over)
+        obs, _ = venv.reset(seed=[int(seeds[i]) for _ in range(n_candidates) for i in idx])
+        agent = make_agent(n, np.repeat(np.arange(n_candidates), len(idx)))
+        core, steps = venv.core, venv.task.episode_steps
+        sq, off = np.zeros(n), np.zeros(n)
+        for _ in range(steps):
+            core.step(venv.task.currents_A(agent.act(obs), n))
+            obs = core.obs
+            sq += core.err ** 2
+            off += core.err > WITHIN_DEG
+        mse[:, idx] = (sq / steps).reshape(n_candidates, len(idx))
+        outside[:, idx] = (off / steps).reshape(n_candidates, len(idx))
+    return mse, outside
+
+
+class _ResidualAgent:
+    """The linear residual on a base controller (candidate rows ``Wn``, ``bn``), batched."""
+
+    def __init__(self, task_kwargs, n, scale_A, base_name, Wn, bn, mean, std, stats):
+        self.base = ControllerResidual(task_kwargs, n, scale_A, base_name)
+        self.Wn, self.bn, self.mean, self.std, self.stats = Wn, bn, mean, std, stats
+
+    def act(self, obs):
+        f = self.base.features(obs)
+        if self.stats is not None:
+            self.stats.update(f)
+        x = (f - self.mean) / self.std
+        r = np.clip(np.einsum("nkf,nf->nk", self.Wn, x) + self.bn, -1.0, 1.0)
+        return self.base.actions(r)
+
+
 def rollout(task_kwargs: dict[str, Any], scale_A: float, W: np.ndarray, b: np.ndarray,
             seeds: list[int], mean: np.ndarray, std: np.ndarray,
             stats: RunningStats | None = None, base_name: str = "pid") -> np.ndarray:
-    """Candidates ``W`` (C, 3, F), ``b`` (C, 3) on every seed: one batched env of C x len(seeds)
-    rigs. Returns the mean squared tracking error per candidate and episode (C, E), deg^2."""
-    from neck_env.envs import NeckTrackVectorEnv
+    """Residual candidates ``W`` (C, 3, F), ``b`` (C, 3) on every seed (nominal plant). Returns
+    the mean squared tracking error per candidate and episode (C, E), deg^2."""
+    return play(task_kwargs, W.shape[0], seeds,
+                lambda n, cand: _ResidualAgent(task_kwargs, n, scale_A, base_name, W[cand],
+                                               b[cand], mean, std, stats))[0]
 
-    C, E = W.shape[0], len(seeds)
-    n = C * E
-    venv = NeckTrackVectorEnv(num_envs=n, **task_kwargs)
-    base = ControllerResidual(task_kwargs, n, scale_A, base_name)
-    obs, _ = venv.reset(seed=[s for _ in range(C) for s in seeds])
-    core = venv.core
-    cand = np.repeat(np.arange(C), E)
-    Wn, bn = W[cand], b[cand]
-    steps = venv.task.episode_steps
-    sq = np.zeros(n)
-    for _ in range(steps):
-        f = base.features(obs)
-        if stats is not None:
-            stats.update(f)
-        x = (f - mean) / std
-        r = np.clip(np.einsum("nkf,nf->nk", Wn, x) + bn, -1.0, 1.0)
-        core.step(venv.task.currents_A(base.actions(r), n))
-        obs = core.obs
-        sq += core.err ** 2
-    return (sq / steps).reshape(C, E)
+
+class _Residual:
+    """ARS's view of the residual policy: theta = (W (3, F), b (3)) flattened, with the running
+    feature statistics of ARS V2."""
+
+    name = "residual"
+
+    def __init__(self, cfg: "ARSConfig", task_kwargs: dict[str, Any]):
+        self.cfg, self.task_kwargs = cfg, task_kwargs
+        self.size = 3 * N_FEATURES + 3
+        self.stats = RunningStats(N_FEATURES)
+        self.frozen = (np.zeros(N_FEATURES), np.ones(N_FEATURES))  # statistics the policy uses
+
+    def begin_iteration(self) -> None:
+        self.frozen = (self.stats.mean.copy(), self.stats.std().copy())
+
+    def play(self, thetas, seeds, overrides=None, learn_stats=True):
+        W = thetas[:, :3 * N_FEATURES].reshape(-1, 3, N_FEATURES)
+        b = thetas[:, 3 * N_FEATURES:]
+        mean, std = self.frozen
+        stats = self.stats if learn_stats else None
+        return play(self.task_kwargs, len(thetas), seeds,
+                    lambda n, cand: _ResidualAgent(self.task_kwargs, n, self.cfg.scale_A,
+                                                   self.cfg.base, W[cand], b[cand], mean, std,
+                                                   stats), overrides)
+
+    def export(self, path: Path, theta, meta_extra: dict[str, Any]) -> dict[str, Any]:
+        W, b = theta[:3 * N_FEATURES].reshape(3, N_FEATURES), theta[3 * N_FEATURES:]
+        mean, std = meta_extra.pop("stats")
+        return export(path, W, b, mean, std, self.cfg, self.task_kwargs, meta_extra)
+
+    def snapshot(self):
+        return self.frozen
+
+
+class _Muscle:
+    """ARS's view of the muscle-shared law (``agents.muscle_policy``): theta = its weights. The
+    features are scaled by fixed physical units, so no running statistics."""
+
+    name = "muscle"
+
+    def __init__(self, cfg: "ARSConfig", task_kwargs: dict[str, Any]):
+        self.cfg, self.task_kwargs = cfg, task_kwargs
+        self.size = MUSCLE_FEATURES
+
+    def begin_iteration(self) -> None:
+        pass
+
+    def play(self, thetas, seeds, overrides=None, learn_stats=True):
+        return play(self.task_kwargs, len(thetas), seeds,
+                    lambda n, cand: MusclePolicy(self.task_kwargs, n, thetas[cand]), overrides)
+
+    def export(self, path: Path, theta, meta_extra: dict[str, Any]) -> dict[str, Any]:
+        meta_extra.pop("stats")
+        return export_muscle(path, theta, self.cfg, self.task_kwargs, meta_extra)
+
+    def snapshot(self):
+        return None
+
+
+def train_overrides(cfg: "ARSConfig", rng: np.random.Generator, episodes: int) -> list[dict[str, Any]]:
+    """The simulation overrides of one iteration's episodes: the config's suites in turn (the
+    benchmark's definitions), the effects suite's catalogue entry from a random offset so every
+    entry comes round."""
+    from .benchmark import suite_overrides
+
+    offset = int(rng.integers(0, 1_000))
+    k = len(cfg.train_suites)
+    return [suite_overrides(cfg.train_suites[i % k], offset + i // k) for i in range(episodes)]
 
 
 def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     task_kwargs = cfg.task_kwargs()
     rng = np.random.default_rng(cfg.seed)
-    F = N_FEATURES
-    W, b = np.zeros((3, F)), np.zeros(3)
-    stats = RunningStats(F)
+    fam = _Muscle(cfg, task_kwargs) if cfg.policy == "muscle" else _Residual(cfg, task_kwargs)
+    theta = np.zeros(fam.size)
+    lam = cfg.outside_weight_deg2
+    base_label = "smoothed bang-bang (w = 0)" if cfg.policy == "muscle" else cfg.base
     val = list(cfg.validation_seeds)
     t0 = time.time()
-    # the base controller (W = 0) on the validation episodes: the reference of the curve; it
-    # also seeds the feature statistics
-    base_val = rollout(task_kwargs, cfg.scale_A, W[None], b[None], val, np.zeros(F), np.ones(F),
-                      stats, cfg.base)[0]
-    log(f"{cfg.base} on {len(val)} validation episodes: RMSE {np.sqrt(base_val.mean()):.3f} deg "
-        f"({time.time() - t0:.0f} s)")
-    curve = [(0, float(np.sqrt(base_val.mean())), float(np.sqrt(base_val.mean())), 0.0)]
-    best = (float(base_val.mean()), W.copy(), b.copy(), stats.mean.copy(), stats.std().copy(), 0)
+    # the untrained policy (theta = 0: the base controller) on the validation episodes: the
+    # reference of the curve; for the residual it also seeds the feature statistics
+    base_mse, base_out = (a[0] for a in fam.play(theta[None], val))
+    base_rmse = float(np.sqrt(base_mse.mean()))
+    log(f"{base_label} on {len(val)} validation episodes: RMSE {base_rmse:.3f} deg, within "
+        f"{WITHIN_DEG:g} deg {1 - base_out.mean():.3f} ({time.time() - t0:.0f} s)")
+    curve = [(0, base_rmse, base_rmse, 0.0, float(1 - base_out.mean()))]
+    best = (float((base_mse + lam * base_out).mean()), theta.copy(), fam.snapshot(), 0)
     for it in range(1, cfg.iterations + 1):
-        mean, std = stats.mean.copy(), stats.std().copy()
-        dW = rng.standard_normal((cfg.directions, 3, F))
-        db = rng.standard_normal((cfg.directions, 3))
+        fam.begin_iteration()
+        d = rng.standard_normal((cfg.directions, fam.size))
         seeds = [int(s) for s in rng.integers(10_000, 2**31 - 1, cfg.episodes_per_candidate)]
-        Wc = np.concatenate([W + cfg.noise_std * dW, W - cfg.noise_std * dW])
-        bc = np.concatenate([b + cfg.noise_std * db, b - cfg.noise_std * db])
-        mse = rollout(task_kwargs, cfg.scale_A, Wc, bc, seeds, mean, std, stats, cfg.base)
-        reward = -mse.mean(axis=1)  # objective: minus the pooled squared error
+        over = train_overrides(cfg, rng, cfg.episodes_per_candidate)
+        mse, outside = fam.play(np.concatenate([theta + cfg.noise_std * d, theta - cfg.noise_std * d]),
+                                seeds, over)
+        reward = -(mse + lam * outside).mean(axis=1)  # objective: the pooled squared error (+ time off)
         r_plus, r_minus = reward[:cfg.directions], reward[cfg.directions:]
         top = np.argsort(-np.maximum(r_plus, r_minus))[:cfg.top_directions]
         sigma = np.concatenate([r_plus[top], r_minus[top]]).std()
         sigma = sigma if sigma > 1e-12 else 1.0
-        step = cfg.step_size / (cfg.top_directions * sigma)
-        W = W + step * np.einsum("k,kij->ij", r_plus[top] - r_minus[top], dW[top])
-        b = b + step * (r_plus[top] - r_minus[top]) @ db[top]
+        theta = theta + cfg.step_size / (cfg.top_directions * sigma) * ((r_plus[top] - r_minus[top]) @ d[top])
         line = (f"iteration {it}/{cfg.iterations}: candidates RMSE {np.sqrt(mse.mean(axis=1)).min():.3f}"
                 f"-{np.sqrt(mse.mean(axis=1)).max():.3f} deg")
         if it % cfg.validate_every == 0 or it == cfg.iterations:
-            v = rollout(task_kwargs, cfg.scale_A, W[None], b[None], val, stats.mean, stats.std(),
-                        base_name=cfg.base)[0]
-            d = np.sqrt(v) - np.sqrt(base_val)
-            curve.append((it, float(np.sqrt(v.mean())), float(np.sqrt(base_val.mean())),
-                          float(d.mean())))
-            line += (f"; validation RMSE {np.sqrt(v.mean()):.3f} deg ({cfg.base} {np.sqrt(base_val.mean()):.3f}"
-                     f", paired mean {d.mean():+.3f}, better in {int((d < 0).sum())}/{len(val)})")
-            if v.mean() < best[0]:
-                best = (float(v.mean()), W.copy(), b.copy(), stats.mean.copy(), stats.std().copy(), it)
+            fam.begin_iteration()  # validate with the statistics the policy would ship with
+            v, v_out = (a[0] for a in fam.play(theta[None], val, learn_stats=False))
+            diff = np.sqrt(v) - np.sqrt(base_mse)
+            curve.append((it, float(np.sqrt(v.mean())), base_rmse, float(diff.mean()),
+                          float(1 - v_out.mean())))
+            line += (f"; validation RMSE {np.sqrt(v.mean()):.3f} deg ({base_label} {base_rmse:.3f}"
+                     f", paired mean {diff.mean():+.3f}, better in {int((diff < 0).sum())}/{len(val)}"
+                     f", within {WITHIN_DEG:g} deg {1 - v_out.mean():.3f})")
+            score = float((v + lam * v_out).mean())
+            if score < best[0]:
+                best = (score, theta.copy(), fam.snapshot(), it)
         log(f"{line} ({(time.time() - t0) / 60:.1f} min)")
     wall = time.time() - t0
-    _, Wb, bb, mb, sb, it_best = best
+    _, theta_best, snap, it_best = best
     out.mkdir(parents=True, exist_ok=True)
-    _write_curve(out, curve, cfg.base)
-    meta = export(out / "policy", Wb, bb, mb, sb, cfg, task_kwargs, {
-        "seed": cfg.seed, "iterations": cfg.iterations, "chosen_iteration": it_best,
-        "wall_time_s": round(wall, 1), "command": " ".join([sys.executable, *sys.argv]),
+    _write_curve(out, curve, base_label)
+    meta = fam.export(out / "policy", theta_best, {
+        "stats": snap, "seed": cfg.seed, "iterations": cfg.iterations,
+        "chosen_iteration": it_best, "wall_time_s": round(wall, 1),
+        "command": " ".join([sys.executable, *sys.argv]),
         "versions": {"python": platform.python_version(), "numpy": np.__version__}})
-    log(f"chose iteration {it_best} (best validation RMSE); {wall / 60:.1f} min")
+    log(f"chose iteration {it_best} (best validation objective); {wall / 60:.1f} min")
     return meta
+
+
+def _env_kwargs(task_kwargs: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in task_kwargs.items() if k != "episode_s"}
 
 
 def export(path: Path, W, b, mean, std, cfg: ARSConfig, task_kwargs: dict[str, Any],
            trained: dict[str, Any]) -> dict[str, Any]:
-    """``path``.zip (weights) + ``path``.json for ``agents.policy.DeployedPolicy``."""
+    """A residual policy: ``path``.zip (weights) + ``path``.json for
+    ``agents.policy.DeployedPolicy``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     LinearResidual(W, b).save(path.with_suffix(".zip"))
-    env_kwargs = {k: v for k, v in task_kwargs.items() if k != "episode_s"}
-    meta = {"algo": "ARS", "env_id": cfg.env_id, "env_kwargs": env_kwargs, "frame_stack": 1,
-            "unit_actions": False,
+    meta = {"algo": "ARS", "env_id": cfg.env_id, "env_kwargs": _env_kwargs(task_kwargs),
+            "frame_stack": 1, "unit_actions": False,
             # DeployedPolicy's normalization: (x - mean) / sqrt(var + epsilon), clipped
             "obs_norm": {"mean": list(map(float, mean)), "var": list(map(float, std ** 2)),
                          "clip": 1e9, "epsilon": 0.0},
             "residual": {"base": cfg.base, "scale_A": cfg.scale_A},
-            "config": {**asdict(cfg), "validation_seeds": list(cfg.validation_seeds)},
-            "trained": trained}
+            "config": _config_json(cfg), "trained": trained}
     path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
     return meta
 
 
-def _write_curve(out: Path, curve: list[tuple], base: str = "pid") -> None:
-    (out / "curve.csv").write_text(f"iteration,validation_rmse_deg,{base}_rmse_deg,paired_mean_diff_deg\n"
-                                   + "".join(f"{i},{v:.4f},{p:.4f},{d:.4f}\n" for i, v, p, d in curve))
+def export_muscle(path: Path, w, cfg: ARSConfig, task_kwargs: dict[str, Any],
+                  trained: dict[str, Any]) -> dict[str, Any]:
+    """A muscle-shared policy: ``path``.zip (its weights) + ``path``.json."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    MuscleWeights(w).save(path.with_suffix(".zip"))
+    meta = {"algo": "ARS", "env_id": cfg.env_id, "env_kwargs": _env_kwargs(task_kwargs),
+            "frame_stack": 1, "unit_actions": False, "obs_norm": None,
+            "muscle": {"features": list(MUSCLE_FEATURE_NAMES)},
+            "config": _config_json(cfg), "trained": trained}
+    path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+    return meta
+
+
+def _config_json(cfg: ARSConfig) -> dict[str, Any]:
+    return {**asdict(cfg), "validation_seeds": list(cfg.validation_seeds),
+            "train_suites": list(cfg.train_suites)}
+
+
+def _write_curve(out: Path, curve: list[tuple], reference: str) -> None:
+    """curve.csv / curve.png: the centre policy on the validation episodes per validated
+    iteration, against ``reference`` (the untrained policy) on the same episodes."""
+    (out / "curve.csv").write_text(
+        "iteration,validation_rmse_deg,reference_rmse_deg,paired_mean_diff_deg,validation_within_2deg\n"
+        + "".join(f"{i},{v:.4f},{p:.4f},{d:.4f},{w:.4f}\n" for i, v, p, d, w in curve))
     import matplotlib
 
     matplotlib.use("Agg")
@@ -252,8 +415,8 @@ def _write_curve(out: Path, curve: list[tuple], base: str = "pid") -> None:
 
     it = [c[0] for c in curve]
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.plot(it, [c[1] for c in curve], "o-", label="ARS residual (centre policy)")
-    ax.plot(it, [c[2] for c in curve], "k--", label=base)
+    ax.plot(it, [c[1] for c in curve], "o-", label="ARS (centre policy)")
+    ax.plot(it, [c[2] for c in curve], "k--", label=f"reference: {reference}")
     ax.set_xlabel("ARS iteration")
     ax.set_ylabel("validation RMSE (deg)")
     ax.grid(alpha=0.3)

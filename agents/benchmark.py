@@ -28,11 +28,12 @@ keep the default run under 10 minutes. ``--action-mode both`` (default) runs the
 controllers in current and relay mode (relay runs are named ``NAME@relay``; the MPC runs in
 current mode only).
 
-Controllers: the heuristics and the MPC of ``agents.controllers`` and every saved SB3 policy
-``agents/policies/NAME.zip`` with a sibling ``NAME.json`` (``{"algo": "PPO" | "SAC" | ...,
-"env_kwargs": {...}, ...}``), loaded with ``agents.policy.DeployedPolicy`` (the SB3 class's
-``.load(path, device="cpu")``, ``predict(obs, deterministic=True)``, plus the observation
-normalization / frame stacking / action scaling recorded in the JSON). A policy runs in the
+Controllers: the heuristics and the MPC of ``agents.controllers`` and every saved policy
+``agents/policies/NAME.zip`` with a sibling ``NAME.json`` (``{"algo": "PPO" | "SAC" | ... |
+"ARS", "env_kwargs": {...}, ...}``), loaded with ``agents.policy.DeployedPolicy`` (for SB3 the
+class's ``.load(path, device="cpu")``, ``predict(obs, deterministic=True)``, plus the observation
+normalization / frame stacking / action scaling recorded in the JSON; for ARS the muscle-shared
+law or the residual it names). A policy runs in the
 suite env with its own action interface (``action_mode``, ``supply_current_A``, ``dt`` from its
 ``env_kwargs``); everything else (budget, episode length, targets, noise) is the suite's.
 

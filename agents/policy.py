@@ -1,8 +1,10 @@
-"""A trained SB3 policy packaged for use outside training: the benchmark, the rig, your code.
+"""A trained policy packaged for use outside training: the benchmark, the rig, your code.
 
 A deployable policy is two files side by side:
 
-* ``NAME.zip`` -- the SB3 model (``model.save``),
+* ``NAME.zip`` -- the SB3 model (``model.save``), or for ``algo: "ARS"`` (``agents.ars``) the
+  weights as an npz archive: a linear residual on a controller (``"residual"`` in the JSON) or
+  the muscle-shared law (``"muscle"``, ``agents.muscle_policy``),
 * ``NAME.json`` -- ``{"algo", "env_id", "env_kwargs", "frame_stack", "unit_actions",
   "obs_norm": {"mean", "var", "clip", "epsilon"} | null, "trained": {...provenance...}}``.
 
@@ -39,6 +41,12 @@ class DeployedPolicy:
         self.model = model
         self.meta = meta
         self.residual = None
+        self.muscle = None
+        if meta.get("muscle") is not None:  # the muscle-shared law: its own features and memory
+            from agents.muscle_policy import MusclePolicy
+
+            task_kwargs = dict(meta.get("env_kwargs", {})) if env_kwargs is None else dict(env_kwargs)
+            self.muscle = MusclePolicy(task_kwargs, 1, model.w)
         if meta.get("residual") is not None:
             from agents.residual import ControllerResidual
 
@@ -73,7 +81,11 @@ class DeployedPolicy:
             raise ValueError(f"{meta_path}: not valid JSON ({exc})") from exc
         if "algo" not in meta:
             raise ValueError(f"{meta_path}: missing key 'algo'")
-        if str(meta["algo"]).upper() == "ARS":  # a linear residual (agents.ars): numpy weights
+        if str(meta["algo"]).upper() == "ARS" and "muscle" in meta:  # agents.muscle_policy
+            from agents.muscle_policy import MuscleWeights
+
+            model = MuscleWeights.load(zip_path)
+        elif str(meta["algo"]).upper() == "ARS":  # a linear residual (agents.ars): numpy weights
             from agents.ars import LinearResidual
 
             model = LinearResidual.load(zip_path)
@@ -93,9 +105,13 @@ class DeployedPolicy:
         self._stack = None
         if self.residual is not None:
             self.residual.reset([0])
+        if self.muscle is not None:
+            self.muscle.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Action for the latest observation (first call after ``reset``: the reset observation)."""
+        if self.muscle is not None:
+            return self.muscle.act(np.asarray(obs)[None])[0]
         if self.residual is not None:
             feat = self.residual.features(np.asarray(obs)[None])[0]
             r, _ = self.model.predict(self._normalize(feat), deterministic=True)

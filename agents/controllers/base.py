@@ -126,10 +126,11 @@ class MuscleThermal:
 
 
 class SigmaDelta:
-    """Per-muscle first-order sigma-delta modulator: duty in [0, 1] -> 0/1 with that mean."""
+    """Per-muscle first-order sigma-delta modulator: duty in [0, 1] -> 0/1 with that mean
+    (``shape``: (3,) for one env, (N, 3) for N)."""
 
-    def __init__(self) -> None:
-        self.acc = np.zeros(3)
+    def __init__(self, shape: tuple[int, ...] = (3,)) -> None:
+        self.acc = np.zeros(shape)
 
     def reset(self) -> None:
         self.acc[:] = 0.0

@@ -19,7 +19,7 @@ from neck_env.rig.hardware_env import HardwareNeckEnv  # noqa: E402
 
 pytestmark = pytest.mark.hil
 
-POLICY = Path(__file__).resolve().parents[2] / "agents" / "policies" / "ars_residual_v1.zip"
+POLICY = Path(__file__).resolve().parents[2] / "agents" / "policies" / "ars_muscle_v1.zip"
 
 
 def test_simulated_limits_are_what_the_firmware_reports(rig):
@@ -53,7 +53,7 @@ def test_duty_command_heats_as_the_simulated_firmware(rig):
     assert cur.max() == pytest.approx(7.0, rel=0.02) and cur.min() < 1.0
 
 
-@pytest.mark.skipif(not POLICY.exists(), reason="no shipped v1 residual policy")
+@pytest.mark.skipif(not POLICY.exists(), reason="no shipped v1 policy")
 def test_shipped_v1_policy_holds_the_target_as_well_as_the_pid_on_the_rig(rig, capsys,
                                                                           one_target):
     """The issue's HIL criterion: over the last 4 s of a one-target episode the policy's error
