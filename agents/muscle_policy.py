@@ -53,7 +53,8 @@ import numpy as np
 
 from .controllers.allocation import muscle_unit_vectors
 from .controllers.base import (DEFAULT_TEMP_CAP_C, OBS_ENERGY, OBS_TARGET, OBS_TEMPS, OBS_TILT,
-                               ControlTask, SigmaDelta)
+                               ControlTask, SigmaDelta, ambient_from_start,
+                               over_temperature)
 
 FEATURES = ("proj_error", "target_proj", "tilt_rate", "temp_rise", "temp_rate", "energy_left",
             "time_left", "pace", "own_prev", "others_prev", "error_x_energy", "error_integral",
@@ -137,10 +138,8 @@ class MusclePolicy:
         tgt = obs[:, OBS_TARGET] @ self.u.T
         T = obs[:, OBS_TEMPS]
         first = self.steps == 0
-        if first.any():  # springs start at ambient: the first observation measures it
-            t0 = T[first].mean(axis=1, keepdims=True)
-            self.ambient[first] = np.where((t0 >= 0.0) & (t0 <= 45.0), t0,
-                                           self.nominal_ambient_C)
+        if first.any():
+            self.ambient[first, 0] = ambient_from_start(T[first], self.nominal_ambient_C)
             self.prev_proj[first], self.prev_T[first] = proj[first], T[first]
         p = tgt - proj
         al = RATE_SMOOTHING
@@ -154,8 +153,7 @@ class MusclePolicy:
                         np.clip(frac / np.maximum(t_left, 0.05), 0.0, 3.0), self.a,
                         self.a.sum(axis=1, keepdims=True) - self.a,
                         np.clip(p, -3, 3) * frac, self.integral, np.ones_like(p)], axis=-1)
-        self.hot = np.where(T >= self.temp_cap_C, True,
-                            np.where(T < self.temp_cap_C - TEMP_BAND_C, False, self.hot))
+        self.hot = over_temperature(T, self.hot, self.temp_cap_C, TEMP_BAND_C)
         self._p, self._frac = p, obs[:, OBS_ENERGY]
         return phi / self.scale
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .allocation import muscle_unit_vectors
-from .base import OBS_TARGET, OBS_TEMPS, OBS_TILT, Controller
+from .base import OBS_TARGET, OBS_TEMPS, OBS_TILT, Controller, over_temperature
 
 
 class BangBangController(Controller):
@@ -50,6 +50,5 @@ class BangBangController(Controller):
         p = self.u @ (obs[OBS_TARGET] - obs[OBS_TILT])
         self.on = np.where(p > self.on_above_deg, True, np.where(p < self.off_below_deg, False, self.on))
         T = obs[OBS_TEMPS]
-        self.too_hot = np.where(T >= self.temp_cap_C, True,
-                                np.where(T < self.temp_cap_C - self.temp_band_C, False, self.too_hot))
+        self.too_hot = over_temperature(T, self.too_hot, self.temp_cap_C, self.temp_band_C)
         return np.where(self.on & ~self.too_hot, self.on_current_A, 0.0)

@@ -125,6 +125,21 @@ class MuscleThermal:
         return self.resistance_ohm * np.asarray(current_A) ** 2
 
 
+def ambient_from_start(temps_C: np.ndarray, nominal_C: float) -> np.ndarray:
+    """Springs start an episode at ambient: the first observation's three temperatures
+    (..., 3) measure it (their mean); readings that cannot be room temperature (outside 0-45
+    degC: no or a broken thermistor) keep the nominal value."""
+    t0 = np.mean(temps_C, axis=-1)
+    return np.where((t0 >= 0.0) & (t0 <= 45.0), t0, nominal_C)
+
+
+def over_temperature(temps_C: np.ndarray, was_hot: np.ndarray, cap_C: float,
+                     band_C: float) -> np.ndarray:
+    """The temperature cap's hysteresis (springs burn): a spring is too hot at or above
+    ``cap_C`` and stays so until it is below ``cap_C - band_C`` (any array shape)."""
+    return np.where(temps_C >= cap_C, True, np.where(temps_C < cap_C - band_C, False, was_hot))
+
+
 class SigmaDelta:
     """Per-muscle first-order sigma-delta modulator: duty in [0, 1] -> 0/1 with that mean
     (``shape``: (3,) for one env, (N, 3) for N)."""
@@ -189,10 +204,7 @@ class Controller:
         if obs.shape != (OBS_DIM,):
             raise ValueError(f"act() takes one observation of shape ({OBS_DIM},), got {obs.shape}")
         if self.steps == 0:
-            # Springs start an episode at ambient: the first observation measures it (three
-            # noisy readings); readings that cannot be room temperature keep the nominal value.
-            t0 = float(np.mean(obs[OBS_TEMPS]))
-            self.ambient_C = t0 if 0.0 <= t0 <= 45.0 else self.thermal.ambient_C
+            self.ambient_C = float(ambient_from_start(obs[OBS_TEMPS], self.thermal.ambient_C))
         demand = np.clip(np.nan_to_num(np.asarray(self._demand(obs), dtype=float)), 0.0, self.i_max)
         cur = demand.copy()
         if self.thermal_limit:
