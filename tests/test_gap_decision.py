@@ -7,8 +7,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, Comparison, _draft_rebalanced,
-                                   choose_holdout, responsible, significant)
+from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, UNEXPLAINED_REST_DEG, Comparison,
+                                   _draft_rebalanced, choose_holdout, responsible, rest_moves,
+                                   significant)
 
 
 def _cmp(**kw) -> Comparison:
@@ -108,3 +109,19 @@ def test_a_scanned_draft_splits_the_compromise_h_into_before_and_after():
     plain = {DRAFT_FROM: float(n), "convection_change.tcoef_per_K": 0.004}
     assert _draft_rebalanced(plain, {"h_scale": h_c}, n) == plain
     assert "h_scale" not in _draft_rebalanced({DRAFT_FROM: 3.0}, {}, n)
+
+
+def test_a_steady_rest_drift_moves_the_rest_even_when_its_spread_is_small():
+    # 15 recordings, a gyro bias drifting the rest reading 0.9 deg from first to last: its RMS
+    # spread about the median is only ~0.9/sqrt(12) = 0.26 deg, under the spread criterion
+    n = 15
+    ro = np.linspace(0.0, 0.9, n)
+    spread = float(np.sqrt(np.mean((ro - np.median(ro)) ** 2)))
+    assert spread < UNEXPLAINED_REST_DEG
+    assert rest_moves(spread, 0.9, 0.97)
+    # the same spread without a steady line (R^2 0.1) is scatter, not a move
+    assert not rest_moves(spread, 0.25, 0.1)
+    # a steady but small drift does not count, a large scatter does, too few rest phases never
+    assert not rest_moves(0.08, 0.25, 0.95)
+    assert rest_moves(0.45, 0.1, 0.05)
+    assert not rest_moves(float("nan"), float("nan"), float("nan"))

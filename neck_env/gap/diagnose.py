@@ -59,8 +59,8 @@ PAIR_SEARCH = 3  # with no significant single but a large gap: pairs among this 
 PAIR_TIED = 2  # forward steps also from this many responsible singles tied with the best
 UNEXPLAINED_ABS_DEG = 0.3  # systematic held-out residual (after the final model) above this
 UNEXPLAINED_REL = 0.05  # ... and above this fraction of the RMS measured tilt
-UNEXPLAINED_REST_DEG = 0.3  # rest-offset changing between recordings by more than this (RMS)
-DRIFT_R2 = 0.6  # ... along a straight line in recorded time: a drift (fitted as a nuisance)
+UNEXPLAINED_REST_DEG = 0.3  # rest reading moving by more than this: RMS between recordings ...
+DRIFT_R2 = 0.6  # ... or first to last along a straight line in recorded time this steady: a drift
 SCAN_SENSOR = 96  # scan points for sensor-only effects (no simulation needed)
 SCAN_GRID = {1: 5, 2: 3}  # per-axis scan points for plant effects with 1 or 2 parameters
 
@@ -711,6 +711,17 @@ def rest_drift_stats(data: Prepared, full_pred: list[dict]) -> tuple[np.ndarray,
     return ro, spread, drift, r2
 
 
+def rest_moves(spread: float, drift: float, r2: float) -> bool:
+    """The reading at rest moves through the dataset: its rest offsets spread by more than
+    ``UNEXPLAINED_REST_DEG`` RMS, or drift steadily (R^2 > ``DRIFT_R2``) by more than that from
+    the first recording to the last -- a straight line of total D spreads only ~D/sqrt(12) RMS,
+    so a steady 1 deg would hide under the spread criterion alone. False with fewer than three
+    rest phases (NaN statistics)."""
+    if math.isnan(spread):
+        return False
+    return spread > UNEXPLAINED_REST_DEG or (r2 > DRIFT_R2 and drift > UNEXPLAINED_REST_DEG)
+
+
 def smooth_rms(e: np.ndarray, t: np.ndarray, window_s: float = 3.0) -> np.ndarray:
     """Moving average (systematic part) of a residual series."""
     if e.size < 3:
@@ -803,7 +814,7 @@ def _calibrate(run: _Run) -> _Baseline:
     drift_found = None
     full_plain = model.predict_full([nominal.setting()])[0]  # also localized at the end
     st = rest_drift_stats(data, full_plain)
-    if st[1] > UNEXPLAINED_REST_DEG and st[3] > DRIFT_R2:
+    if st[3] > DRIFT_R2 and rest_moves(*st[1:]):
         drift_found = st
         model.nominal = list(model.nominal) + drift_specs()
         nominal = effect_candidate(model, [], plain.values)
@@ -1004,15 +1015,14 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
     if base.drift_found and not drift_is_own:
         # the nuisance has taken the drift out of the final residual: report it as first seen
         ro, rest_spread, rest_drift, rest_r2 = base.drift_found
-    if not math.isnan(rest_spread):
-        if rest_spread > UNEXPLAINED_REST_DEG:
-            what = (f"drifts steadily through the dataset ({rest_drift:.2f} deg from first to "
-                    f"last recording, R^2 = {rest_r2:.2f})" if rest_r2 > DRIFT_R2
-                    else f"changes between recordings by {rest_spread:.2f} deg RMS")
-            reasons.append(f"the tilt read at rest {what}; "
-                           + ("the verdict's effects do not move it so" if verdict else
-                              "no effect found here moves the rest reading from recording to "
-                              "recording"))
+    if rest_moves(rest_spread, rest_drift, rest_r2):
+        what = (f"drifts steadily through the dataset ({rest_drift:.2f} deg from first to "
+                f"last recording, R^2 = {rest_r2:.2f})" if rest_r2 > DRIFT_R2
+                else f"changes between recordings by {rest_spread:.2f} deg RMS")
+        reasons.append(f"the tilt read at rest {what}; "
+                       + ("the verdict's effects do not move it so" if verdict else
+                          "no effect found here moves the rest reading from recording to "
+                          "recording"))
     best_null = att.best_null
     if att.rival and not verdict:
         nc = att.null_cmp[best_null.name]
@@ -1046,12 +1056,12 @@ def _without_nuisance(run: _Run, fitter: Fitter, final: Candidate) -> Candidate:
 
 def _holds_rest(run: _Run, full_pred: list[dict]) -> bool:
     """The model fitted without the drift nuisance holds the rest reading where it is seen:
-    its rest offsets spread at most ``UNEXPLAINED_REST_DEG``."""
-    spread = rest_drift_stats(run.data, full_pred)[1]
-    if math.isnan(spread) or spread > UNEXPLAINED_REST_DEG:
+    its rest offsets do not move (``rest_moves``)."""
+    _, spread, drift, r2 = rest_drift_stats(run.data, full_pred)
+    if math.isnan(spread) or rest_moves(spread, drift, r2):
         return False
     run.say(f"the rest reading's drift is the verdict's own: without the nuisance its rest "
-            f"offsets spread {spread:.2f} deg")
+            f"offsets spread {spread:.2f} deg and drift {drift:.2f} deg (R^2 {r2:.2f})")
     return True
 
 

@@ -150,11 +150,13 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                             f"improved (at least {D.MIN_REC_CONSISTENT})",
             "unexplained": f"systematic (3 s smoothed) held-out residual of the final model > "
                            f"max({D.UNEXPLAINED_ABS_DEG} deg, {D.UNEXPLAINED_REL:.0%} of the RMS "
-                           f"measured tilt), or the tilt read at rest changing between recordings "
-                           f"by > {D.UNEXPLAINED_REST_DEG} deg RMS (a steady drift, R^2 > {D.DRIFT_R2}, is "
+                           f"measured tilt), or the tilt read at rest moving through the dataset "
+                           f"(by > {D.UNEXPLAINED_REST_DEG} deg RMS between recordings, or by > "
+                           f"{D.UNEXPLAINED_REST_DEG} deg from first to last along a straight "
+                           f"line with R^2 > {D.DRIFT_R2}; such a steady drift is "
                            f"fitted as a nuisance by every candidate so that no effect is blamed "
                            f"for its mean, and is the verdict's own when the verdict model "
-                           f"without the nuisance holds the rest within that spread)",
+                           f"without the nuisance does not move the rest so)",
             "phases": "heating: a muscle commanded on; cooling: all off within 20 s of the last "
                       "switch-off; rest: otherwise",
         },
