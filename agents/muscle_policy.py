@@ -70,14 +70,17 @@ _SCALES = {"proj_error": 5.0, "target_proj": 10.0, "tilt_rate": 5.0, "temp_rise"
 
 
 class MuscleWeights:
-    """The learned weights ``w`` (N_FEATURES,), saved as an npz archive (no pickles); ``predict``
-    is not used: ``MusclePolicy`` applies them."""
+    """The learned weights ``w`` (N_FEATURES,) that ``MusclePolicy`` applies, saved as an npz
+    archive (no pickles)."""
 
     def __init__(self, w: np.ndarray):
         w = np.asarray(w, dtype=np.float64)
         if w.shape != (N_FEATURES,):
             raise ValueError(f"muscle policy weights must have shape ({N_FEATURES},) "
                              f"(features {FEATURES}), got {w.shape}")
+        if not np.all(np.isfinite(w)):
+            bad = [f for f, x in zip(FEATURES, w) if not np.isfinite(x)]
+            raise ValueError(f"muscle policy weights must be finite; not finite: {bad}")
         self.w = w
 
     @classmethod
@@ -110,7 +113,7 @@ class MusclePolicy:
         self.temp_cap_C = float(temp_cap_C)
         self.relay = self.task.action_mode == "relay"
         self.dt = self.task.dt
-        self.u = muscle_unit_vectors()  # (3, 2)
+        self.u = muscle_unit_vectors(self.task.nominal_params().muscles.azimuths_deg)  # (3, 2)
         self.scale = np.array([_SCALES.get(f, 1.0) for f in FEATURES])
         self.modulator = SigmaDelta((self.n, 3))
         z3 = np.zeros((self.n, 3))

@@ -90,6 +90,10 @@ def test_batched_rollouts_are_the_episodes_the_deployed_policy_plays(tmp_path, m
 def test_weights_of_the_wrong_shape_are_refused_by_name(tmp_path):
     with pytest.raises(ValueError, match="proj_error"):
         MuscleWeights(np.zeros(N_FEATURES + 1))
+    w = np.zeros(N_FEATURES)
+    w[FEATURES.index("temp_rate")] = np.nan
+    with pytest.raises(ValueError, match="temp_rate"):
+        MuscleWeights(w)
     np.savez(tmp_path / "x.npz", W=np.zeros(3))
     with pytest.raises(ValueError, match="not a muscle policy"):
         MuscleWeights.load(tmp_path / "x.npz")
