@@ -46,13 +46,13 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import yaml
 
+from .benchmark import SUITES, WITHIN_DEG, suite_overrides
 from .muscle_policy import FEATURES as MUSCLE_FEATURE_NAMES
 from .muscle_policy import N_FEATURES as MUSCLE_FEATURES
 from .muscle_policy import MusclePolicy, MuscleWeights
 from .residual import BASES, N_FEATURES, ControllerResidual
 
 POLICIES = ("residual", "muscle")
-WITHIN_DEG = 2.0  # the benchmark's "within 2 deg"
 
 
 @dataclass(frozen=True)
@@ -94,8 +94,6 @@ class ARSConfig:
         cfg = cls(**data)
         if cfg.policy not in POLICIES:
             raise SystemExit(f"{path}: policy {cfg.policy!r} is not one of {POLICIES}")
-        from .benchmark import SUITES
-
         bad = [x for x in cfg.train_suites if x not in SUITES]
         if bad or not cfg.train_suites:
             raise SystemExit(f"{path}: train_suites {list(cfg.train_suites)}: each one of {SUITES}")
@@ -237,10 +235,9 @@ class _Residual:
     """ARS's view of the residual policy: theta = (W (3, F), b (3)) flattened, with the running
     feature statistics of ARS V2."""
 
-    name = "residual"
-
     def __init__(self, cfg: "ARSConfig", task_kwargs: dict[str, Any]):
         self.cfg, self.task_kwargs = cfg, task_kwargs
+        self.reference = cfg.base  # what theta = 0 is
         self.size = 3 * N_FEATURES + 3
         self.stats = RunningStats(N_FEATURES)
         self.frozen = (np.zeros(N_FEATURES), np.ones(N_FEATURES))  # statistics the policy uses
@@ -258,10 +255,10 @@ class _Residual:
                                                    self.cfg.base, W[cand], b[cand], mean, std,
                                                    stats), overrides)
 
-    def export(self, path: Path, theta, meta_extra: dict[str, Any]) -> dict[str, Any]:
+    def export(self, path: Path, theta, snapshot, trained: dict[str, Any]) -> dict[str, Any]:
         W, b = theta[:3 * N_FEATURES].reshape(3, N_FEATURES), theta[3 * N_FEATURES:]
-        mean, std = meta_extra.pop("stats")
-        return export(path, W, b, mean, std, self.cfg, self.task_kwargs, meta_extra)
+        mean, std = snapshot
+        return export(path, W, b, mean, std, self.cfg, self.task_kwargs, trained)
 
     def snapshot(self):
         return self.frozen
@@ -271,7 +268,7 @@ class _Muscle:
     """ARS's view of the muscle-shared law (``agents.muscle_policy``): theta = its weights. The
     features are scaled by fixed physical units, so no running statistics."""
 
-    name = "muscle"
+    reference = "smoothed bang-bang (w = 0)"  # what theta = 0 is
 
     def __init__(self, cfg: "ARSConfig", task_kwargs: dict[str, Any]):
         self.cfg, self.task_kwargs = cfg, task_kwargs
@@ -284,9 +281,8 @@ class _Muscle:
         return play(self.task_kwargs, len(thetas), seeds,
                     lambda n, cand: MusclePolicy(self.task_kwargs, n, thetas[cand]), overrides)
 
-    def export(self, path: Path, theta, meta_extra: dict[str, Any]) -> dict[str, Any]:
-        meta_extra.pop("stats")
-        return export_muscle(path, theta, self.cfg, self.task_kwargs, meta_extra)
+    def export(self, path: Path, theta, snapshot, trained: dict[str, Any]) -> dict[str, Any]:
+        return export_muscle(path, theta, self.cfg, self.task_kwargs, trained)
 
     def snapshot(self):
         return None
@@ -296,8 +292,6 @@ def train_overrides(cfg: "ARSConfig", rng: np.random.Generator, episodes: int) -
     """The simulation overrides of one iteration's episodes: the config's suites in turn (the
     benchmark's definitions), the effects suite's catalogue entry from a random offset so every
     entry comes round."""
-    from .benchmark import suite_overrides
-
     offset = int(rng.integers(0, 1_000))
     k = len(cfg.train_suites)
     return [suite_overrides(cfg.train_suites[i % k], offset + i // k) for i in range(episodes)]
@@ -309,7 +303,7 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     fam = _Muscle(cfg, task_kwargs) if cfg.policy == "muscle" else _Residual(cfg, task_kwargs)
     theta = np.zeros(fam.size)
     lam = cfg.outside_weight_deg2
-    base_label = "smoothed bang-bang (w = 0)" if cfg.policy == "muscle" else cfg.base
+    base_label = fam.reference
     val = list(cfg.validation_seeds)
     t0 = time.time()
     # the untrained policy (theta = 0: the base controller) on the validation episodes: the
@@ -352,8 +346,8 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     _, theta_best, snap, it_best = best
     out.mkdir(parents=True, exist_ok=True)
     _write_curve(out, curve, base_label)
-    meta = fam.export(out / "policy", theta_best, {
-        "stats": snap, "seed": cfg.seed, "iterations": cfg.iterations,
+    meta = fam.export(out / "policy", theta_best, snap, {
+        "seed": cfg.seed, "iterations": cfg.iterations,
         "chosen_iteration": it_best, "wall_time_s": round(wall, 1),
         "command": " ".join([sys.executable, *sys.argv]),
         "versions": {"python": platform.python_version(), "numpy": np.__version__}})
@@ -361,39 +355,37 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     return meta
 
 
-def _env_kwargs(task_kwargs: dict[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in task_kwargs.items() if k != "episode_s"}
-
-
 def export(path: Path, W, b, mean, std, cfg: ARSConfig, task_kwargs: dict[str, Any],
            trained: dict[str, Any]) -> dict[str, Any]:
     """A residual policy: ``path``.zip (weights) + ``path``.json for
     ``agents.policy.DeployedPolicy``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    LinearResidual(W, b).save(path.with_suffix(".zip"))
-    meta = {"algo": "ARS", "env_id": cfg.env_id, "env_kwargs": _env_kwargs(task_kwargs),
-            "frame_stack": 1, "unit_actions": False,
-            # DeployedPolicy's normalization: (x - mean) / sqrt(var + epsilon), clipped
-            "obs_norm": {"mean": list(map(float, mean)), "var": list(map(float, std ** 2)),
-                         "clip": 1e9, "epsilon": 0.0},
-            "residual": {"base": cfg.base, "scale_A": cfg.scale_A},
-            "config": _config_json(cfg), "trained": trained}
-    path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
-    return meta
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    LinearResidual(W, b).save(Path(path).with_suffix(".zip"))
+    # DeployedPolicy's normalization: (x - mean) / sqrt(var + epsilon), clipped
+    norm = {"mean": list(map(float, mean)), "var": list(map(float, std ** 2)), "clip": 1e9,
+            "epsilon": 0.0}
+    return _write_meta(path, cfg, task_kwargs, trained, norm,
+                       residual={"base": cfg.base, "scale_A": cfg.scale_A})
 
 
 def export_muscle(path: Path, w, cfg: ARSConfig, task_kwargs: dict[str, Any],
                   trained: dict[str, Any]) -> dict[str, Any]:
     """A muscle-shared policy: ``path``.zip (its weights) + ``path``.json."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    MuscleWeights(w).save(path.with_suffix(".zip"))
-    meta = {"algo": "ARS", "env_id": cfg.env_id, "env_kwargs": _env_kwargs(task_kwargs),
-            "frame_stack": 1, "unit_actions": False, "obs_norm": None,
-            "muscle": {"features": list(MUSCLE_FEATURE_NAMES)},
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    MuscleWeights(w).save(Path(path).with_suffix(".zip"))
+    return _write_meta(path, cfg, task_kwargs, trained, None,
+                       muscle={"features": list(MUSCLE_FEATURE_NAMES)})
+
+
+def _write_meta(path: Path, cfg: ARSConfig, task_kwargs: dict[str, Any],
+                trained: dict[str, Any], obs_norm: dict[str, Any] | None,
+                **kind: dict[str, Any]) -> dict[str, Any]:
+    """``path``.json of an ARS policy; ``kind``: ``residual=...`` or ``muscle=...``."""
+    env_kwargs = {k: v for k, v in task_kwargs.items() if k != "episode_s"}
+    meta = {"algo": "ARS", "env_id": cfg.env_id, "env_kwargs": env_kwargs, "frame_stack": 1,
+            "unit_actions": False, "obs_norm": obs_norm, **kind,
             "config": _config_json(cfg), "trained": trained}
-    path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+    Path(path).with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
     return meta
 
 

@@ -136,7 +136,10 @@ class MusclePolicy:
     def features(self, obs: np.ndarray) -> np.ndarray:
         """Advance the policy's memory by one observation (N, 8) and return phi (N, 3, F),
         scaled."""
-        obs = np.asarray(obs, dtype=np.float64).reshape(self.n, -1)
+        return self._observe(np.asarray(obs, dtype=np.float64).reshape(self.n, -1))[0]
+
+    def _observe(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``features`` and the projected errors p (N, 3), deg, of observations (N, 8)."""
         proj = obs[:, OBS_TILT] @ self.u.T
         tgt = obs[:, OBS_TARGET] @ self.u.T
         T = obs[:, OBS_TEMPS]
@@ -157,16 +160,16 @@ class MusclePolicy:
                         self.a.sum(axis=1, keepdims=True) - self.a,
                         np.clip(p, -3, 3) * frac, self.integral, np.ones_like(p)], axis=-1)
         self.hot = over_temperature(T, self.hot, self.temp_cap_C, TEMP_BAND_C)
-        self._p, self._frac = p, obs[:, OBS_ENERGY]
-        return phi / self.scale
+        return phi / self.scale, p
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Env actions (N, 3) for the latest observations (N, 8): currents (float32) or relay
         states (int8)."""
-        phi = self.features(obs)
-        z = SLOPE_PER_DEG * (self._p - ON_DEG) + np.einsum("nkf,nf->nk", phi, self.w)
+        obs = np.asarray(obs, dtype=np.float64).reshape(self.n, -1)
+        phi, p = self._observe(obs)
+        z = SLOPE_PER_DEG * (p - ON_DEG) + np.einsum("nkf,nf->nk", phi, self.w)
         a = 1.0 / (1.0 + np.exp(-np.clip(z, -30.0, 30.0)))
-        a = np.where(self.hot | (self._frac[:, None] <= 0.0), 0.0, a)
+        a = np.where(self.hot | (obs[:, OBS_ENERGY:OBS_ENERGY + 1] <= 0.0), 0.0, a)
         self.a = a
         self.steps += 1
         if self.relay:

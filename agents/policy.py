@@ -42,15 +42,14 @@ class DeployedPolicy:
         self.meta = meta
         self.residual = None
         self.muscle = None
+        task_kwargs = dict(meta.get("env_kwargs", {})) if env_kwargs is None else dict(env_kwargs)
         if meta.get("muscle") is not None:  # the muscle-shared law: its own features and memory
             from agents.muscle_policy import MusclePolicy
 
-            task_kwargs = dict(meta.get("env_kwargs", {})) if env_kwargs is None else dict(env_kwargs)
             self.muscle = MusclePolicy(task_kwargs, 1, model.w)
         if meta.get("residual") is not None:
             from agents.residual import ControllerResidual
 
-            task_kwargs = dict(meta.get("env_kwargs", {})) if env_kwargs is None else dict(env_kwargs)
             self.residual = ControllerResidual(task_kwargs, 1, float(meta["residual"]["scale_A"]),
                                                meta["residual"].get("base", "pid"))
         self.frame_stack = int(meta.get("frame_stack", 1))
