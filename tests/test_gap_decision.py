@@ -30,6 +30,18 @@ def test_f_test_with_a_consistent_improvement_names_the_effect():
     assert not significant(_cmp(t=1.8, recordings=3, recordings_improved=2))
 
 
+def test_a_short_dataset_is_consistent_when_every_block_improved():
+    # one 12 s held-out recording: three 5 s blocks; a large F with every block improved is
+    # consistent though the t over 2 degrees of freedom is weak (the improvement varies in size)
+    short = dict(recordings=1, recordings_improved=1, blocks=3, n_eff=10.0, F_crit=4.9,
+                 gap_before_deg=0.45, gap_after_deg=0.09, reduction=0.8, abs_reduction_deg=0.36)
+    assert significant(_cmp(F=25.0, t=1.3, blocks_improved=3, **short))
+    assert not significant(_cmp(F=25.0, t=1.3, blocks_improved=2, **short))
+    assert not significant(_cmp(F=4.0, t=1.3, blocks_improved=3, **short))  # F test still rules
+    # two blocks improved of two are too few to call consistent
+    assert not significant(_cmp(F=25.0, t=1.3, **dict(short, blocks=2), blocks_improved=2))
+
+
 def test_paired_evidence_stands_without_the_f_test():
     # a smooth structural residual leaves few effective samples (F_crit 5): every held-out
     # recording improved and the block t carry the decision

@@ -54,6 +54,7 @@ MIN_REL = 0.20  # the effect must remove at least this fraction of the held-out 
 MIN_ABS_DEG = 0.05  # ... and at least this much of it, degrees
 BLOCK_S = 5.0
 MIN_REC_CONSISTENT = 3  # ... or improved in every one of at least this many held-out recordings
+MIN_BLOCKS_CONSISTENT = 3  # ... or (with the F test) in every one of at least this many blocks
 PAIR_TOP = 3  # pairs printed in the log
 PAIR_SEARCH = 3  # with no significant single but a large gap: pairs among this many best singles
 PAIR_TIED = 2  # forward steps also from this many responsible singles tied with the best
@@ -306,10 +307,12 @@ def significant(c: Comparison) -> bool:
     """Responsible: beats the reference on held-out data by a practical margin (``MIN_REL``,
     ``MIN_ABS_DEG``) and by a test, either
 
-    * the F test (with the margin it implies) and consistently (block t, or all held-out
-      recordings improved but at most one of four or more: an effect that needs a particular
-      excitation -- a heated neighbour, a long cooling tail -- has nothing to improve in a
-      recording without it), or
+    * the F test (with the margin it implies) and consistently (block t, or every one of at
+      least ``MIN_BLOCKS_CONSISTENT`` held-out blocks improved -- on a short dataset the t over
+      three blocks (2 degrees of freedom) fails an 80 % improvement whose size merely varies
+      from block to block --, or all held-out recordings improved but at most one of four or
+      more: an effect that needs a particular excitation -- a heated neighbour, a long cooling
+      tail -- has nothing to improve in a recording without it), or
     * paired: every one of at least ``MIN_REC_CONSISTENT`` held-out recordings improved *and*
       the block t. A rig whose structure differs from the model's leaves a smooth residual
       whose effective sample count is a handful per recording, and the F test then asks a
@@ -320,7 +323,8 @@ def significant(c: Comparison) -> bool:
                  and c.recordings_improved == c.recordings)
     most_rec = (c.recordings >= MIN_REC_CONSISTENT
                 and c.recordings_improved >= c.recordings - (1 if c.recordings >= 4 else 0))
-    by_f = c.F > c.F_crit and (c.t > T_CRIT or most_rec)
+    every_block = c.blocks >= MIN_BLOCKS_CONSISTENT and c.blocks_improved == c.blocks
+    by_f = c.F > c.F_crit and (c.t > T_CRIT or every_block or most_rec)
     paired = every_rec and c.t > T_CRIT
     return ((by_f or paired) and c.reduction >= MIN_REL
             and c.abs_reduction_deg >= MIN_ABS_DEG)

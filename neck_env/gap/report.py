@@ -146,8 +146,9 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "significance": f"held-out F test of mean squared tilt error, effective sample size "
                             f"from the residual autocorrelation, level {D.ALPHA}; and reduction "
                             f">= {D.MIN_REL:.0%} and >= {D.MIN_ABS_DEG} deg; and paired t over "
-                            f"{D.BLOCK_S:g} s blocks > {D.T_CRIT} or every held-out recording "
-                            f"improved (at least {D.MIN_REC_CONSISTENT})",
+                            f"{D.BLOCK_S:g} s blocks > {D.T_CRIT}, or every held-out block improved "
+                            f"(at least {D.MIN_BLOCKS_CONSISTENT}) with the F test, or every "
+                            f"held-out recording improved (at least {D.MIN_REC_CONSISTENT})",
             "unexplained": f"systematic (3 s smoothed) held-out residual of the final model > "
                            f"max({D.UNEXPLAINED_ABS_DEG} deg, {D.UNEXPLAINED_REL:.0%} of the RMS "
                            f"measured tilt), or the tilt read at rest moving through the dataset "
