@@ -107,7 +107,7 @@ def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: st
     elapsed = time.perf_counter() - t0
     rep = json.loads(rep_path.read_text()) if rc == 0 else {}
     return {"seed": seed, "truth": truth["effects"], "rc": rc, "report": rep, "seconds": elapsed,
-            "baseline_truth": truth.get("baseline_ratios")}
+            "baseline_truth": truth.get("baseline_ratios"), "physical_truth": truth.get("physical")}
 
 
 def run_case_task(case: tuple[list[str], int], root: Path | None, run_kwargs: dict) -> dict:
@@ -177,16 +177,24 @@ def summarize(results: list[dict]) -> str:
     L.append(f"effect-free: ambiguous entries {sum(len(r['report'].get('ambiguous', [])) for r in free)} "
              f"over {len(free)} datasets " + str([[a["effect"] for a in r["report"].get("ambiguous", [])]
                                                    for r in free]))
-    hrec = []
+    # in physical units, so that any generator's rig compares, whatever its model's structure
+    phys = {"h": [], "tau": []}
     for r in free:
-        br = r.get("baseline_truth") or {}
-        cal = r["report"].get("calibration", {}).get("params", {}).get("h_scale")
-        if cal and "h_scale" in br:
-            hrec.append((cal["value"] / br["h_scale"] - 1, cal.get("identified")))
-    if hrec:
-        L.append("baseline recovered on effect-free data: h fitted / true - 1 = "
-                 + ", ".join(f"{100 * e:+.0f} %{'' if ok else ' (not identified)'}" for e, ok in hrec)
-                 + f"; within +-25 %: {sum(abs(e) <= 0.25 for e, _ in hrec)}/{len(hrec)}")
+        pt, cal = r.get("physical_truth") or {}, r["report"].get("calibration", {})
+        h = cal.get("params", {}).get("h_scale")
+        if h and "convection_W_m2K" in pt:
+            phys["h"].append((cal["h_default_W_m2K"] * h["value"] / pt["convection_W_m2K"] - 1,
+                              h.get("identified")))
+        tau = cal.get("cooling_time_constant_s")
+        if tau and "cooling_time_constant_s" in pt:
+            phys["tau"].append((tau["value"] / pt["cooling_time_constant_s"] - 1,
+                                tau.get("identified")))
+    for key, what in (("h", "h (W/m^2K)"), ("tau", "cooling time constant m c/(h A)")):
+        if phys[key]:
+            L.append(f"effect-free, {what} fitted / true - 1 = "
+                     + ", ".join(f"{100 * e:+.0f} %{'' if ok else ' (not identified)'}"
+                                 for e, ok in phys[key])
+                     + f"; within +-25 %: {sum(abs(e) <= 0.25 for e, _ in phys[key])}/{len(phys[key])}")
     red = []
     for r in singles:
         name = next(iter(r["truth"]))

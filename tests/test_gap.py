@@ -139,6 +139,9 @@ def test_blind_small(tmp_path, effects, seed, baseline):
         h = rep["calibration"]["params"]["h_scale"]
         assert h["identified"]
         assert abs(h["value"] / truth["baseline_ratios"]["h_scale"] - 1) < 0.25
+        tau = rep["calibration"]["cooling_time_constant_s"]
+        assert tau["identified"]
+        assert abs(tau["value"] / truth["physical"]["cooling_time_constant_s"] - 1) < 0.25
     elif effects == ["gyro_bias_drift"]:
         # not in the catalogue: unexplained, and the residual left sits in the tilt signals
         assert rep["unexplained"] is True
@@ -266,11 +269,16 @@ def test_blind_independent_rig(tmp_path, effects, seed):
     from neck_env.gap.independent import generate as generate_independent
 
     ds = tmp_path / "ds"
-    generate_independent(ds, effects, seed=seed, baseline="wide")
+    truth = generate_independent(ds, effects, seed=seed, baseline="wide")
     rep = _diagnose(ds, tmp_path)
     _check_contract(rep)
     if not effects:
         assert rep["verdict"] == []
+        # its h differs from ours by its wire's heat capacity per area, but the time constant
+        # of a cooling tail is the same physical figure in both models
+        tau = rep["calibration"]["cooling_time_constant_s"]
+        assert tau["identified"]
+        assert abs(tau["value"] / truth["physical"]["cooling_time_constant_s"] - 1) < 0.25
     else:
         assert rep["verdict"] == effects
         assert rep["effects"][0]["name"] == effects[0]

@@ -9,8 +9,8 @@ from neck_env.params import NeckParams, default_params
 from neck_env.physics import layout as L
 from neck_env.physics.backbone import head_rotation, kinematics, kinematics_batch, pose_from_angles
 from neck_env.physics.muscles import generalized_forces, spring_geometry
-from neck_env.physics.plant import (constants_from_params, initial_state, pulse_currents, simulate,
-                                    step)
+from neck_env.physics.plant import (constants_from_params, cooling_time_constant_s, initial_state,
+                                    pulse_currents, simulate, step)
 from neck_env.physics.sma import resistance_batch, spring_force_batch, spring_rate_batch
 
 
@@ -126,6 +126,22 @@ def test_energy_balance_over_a_pulse(pc):
     assert stored + convected + latent == pytest.approx(heat_in, rel=0.01)
     # Hand check of the first step: I^2 R_m dt at 7 A through one martensite spring.
     assert joule[0] == pytest.approx(49 * pc[0, L.R_M] * dt, rel=1e-12)
+
+
+def test_cooling_tail_decays_with_the_wire_time_constant(params, pc):
+    # m c / (h A) of a wire is rho c_p d / (4 h), whatever its length
+    tau = cooling_time_constant_s(params)
+    sp, mat = params.spring, params.material
+    assert tau == pytest.approx(mat.density_kg_m3 * mat.specific_heat_J_kgK * sp.wire_diameter_m
+                                / (4 * params.thermal.convection_W_m2K), rel=1e-12)
+    # a simulated cooling tail: while no phase changes (no latent heat), T - ambient decays as
+    # exp(-t / tau)
+    tr, _ = simulate(pc, pulse_currents([8.0], 0, 5.0, 40.0))
+    t, T, xi = tr.t_s, tr.T_C[:, 0, 0], tr.xi[:, 0, 0]
+    cool = (t > 5.2) & (np.abs(np.gradient(xi, t)) < 1e-9) & (T - params.thermal.ambient_C > 5)
+    assert cool.sum() > 20, "the tail must hold a stretch without transformation"
+    slope = np.polyfit(t[cool], np.log(T[cool] - params.thermal.ambient_C), 1)[0]
+    assert -1 / slope == pytest.approx(tau, rel=0.02)
 
 
 # --- Backbone kinematics --------------------------------------------------------------------

@@ -1026,6 +1026,9 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         "effects": eff, "effect_names": sorted(eff),
         "catalogued": sorted(e for e in eff if e in CATALOGUE),
         "temperatures": bool(temperatures), "baseline": base,
+        # the quantities any model of the rig can be compared on, whatever its structure
+        "physical": {"convection_W_m2K": p.h_W_m2K,
+                     "cooling_time_constant_s": _cooling_time_constant_s(p)},
         "imu": asdict(imu), "thermistor_offsets_C": [float(x) for x in therm_off],
         "recordings": rec_truth,
     }

@@ -50,7 +50,8 @@ import numpy as np
 from .. import effects as fx
 from ..params import NeckParams, default_params
 from ..physics import layout as L
-from ..physics.plant import constants_from_params, initial_state, step_inplace
+from ..physics.plant import (constants_from_params, cooling_time_constant_s, initial_state,
+                             step_inplace)
 from ..experiments import (add_dataset_arguments, dataset_arguments, protocol_schedule,
                            truth_path_for)
 from ..recording import write_meta, write_recording
@@ -282,6 +283,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         "sensor_bias": {"accel_g": abias.tolist(), "gyro_dps": gbias.tolist()},
         "recordings": recs_truth, "meta": meta, "integrator_dt_s": dt, "hard": hard,
         "baseline": baseline, "baseline_ratios": baseline_ratios(params),
+        "physical": {"convection_W_m2K": params.thermal.convection_W_m2K,
+                     "cooling_time_constant_s": cooling_time_constant_s(params)},
     }
     tp = Path(truth_path) if truth_path is not None else truth_path_for(out_dir)
     tp.parent.mkdir(parents=True, exist_ok=True)

@@ -109,6 +109,13 @@ def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarr
     return out
 
 
+def cooling_time_constant_s(params: NeckParams) -> float:
+    """m c / (h A) of a spring, = rho c_p d / (4 h) for a wire: the time constant of a cooling
+    tail, which cooling recordings pin whatever split of h and heat capacity a model uses."""
+    c = constants_from_params(params)[0]
+    return float(c[HEAT_CAP] / c[HA])
+
+
 def refresh_derived(consts: np.ndarray) -> None:
     """Recompute the derived columns after base columns changed (randomization, fitting)."""
     consts[:, INV_C_A] = 1.0 / consts[:, C_A]
