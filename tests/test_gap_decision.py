@@ -1,5 +1,6 @@
 """The diagnosis's held-out decision rule (``gap.diagnose.significant`` / ``responsible``) on
-constructed comparisons: which evidence names an effect and which does not."""
+constructed comparisons: which evidence names an effect and which does not; and the derived
+cooling time constant of the calibration summary."""
 
 from dataclasses import replace
 from types import SimpleNamespace
@@ -8,8 +9,11 @@ import numpy as np
 import pytest
 
 from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, UNEXPLAINED_REST_DEG, Comparison,
-                                   _draft_rebalanced, choose_holdout, responsible, rest_moves,
-                                   significant)
+                                   _cooling_time_constant, _draft_rebalanced, choose_holdout,
+                                   responsible, rest_moves, significant)
+from neck_env.gap.model import nominal_specs
+from neck_env.params import default_params
+from neck_env.physics.plant import cooling_time_constant_s
 
 
 def _cmp(**kw) -> Comparison:
@@ -137,3 +141,28 @@ def test_a_steady_rest_drift_moves_the_rest_even_when_its_spread_is_small():
     assert not rest_moves(0.08, 0.25, 0.95)
     assert rest_moves(0.45, 0.1, 0.05)
     assert not rest_moves(float("nan"), float("nan"), float("nan"))
+
+
+def test_cooling_time_constant_is_the_ratio_of_heat_capacity_to_h_with_correlated_errors():
+    specs = nominal_specs(25.0, 1.0)
+    keys = [sp.key for sp in specs]
+    i, j = keys.index("h_scale"), keys.index("heat_capacity_scale")
+    model = SimpleNamespace(base=default_params())
+    tau0 = cooling_time_constant_s(model.base)
+    params = {"h_scale": {"value": 2.0, "std": 0.2}, "heat_capacity_scale": {"value": 1.1, "std": 0.11}}
+
+    def tau(rho: float) -> dict:
+        corr = np.eye(len(specs))
+        corr[i, j] = corr[j, i] = rho
+        return _cooling_time_constant(model, specs, params, corr)
+
+    assert tau(0.0)["value"] == pytest.approx(tau0 * 1.1 / 2.0)
+    # equal relative errors: independent -> sqrt(2) x 10 %; moving together the ratio is exact,
+    # moving apart the errors add
+    assert tau(0.0)["std"] / tau(0.0)["value"] == pytest.approx(0.1 * np.sqrt(2))
+    assert tau(1.0)["std"] == pytest.approx(0.0, abs=1e-12) and tau(1.0)["identified"]
+    assert tau(-1.0)["std"] / tau(-1.0)["value"] == pytest.approx(0.2)
+    # identified when the data shrink it below half its prior (0.7 and 0.12 in log h, log c)
+    assert tau(0.0)["identified"]
+    params["h_scale"]["std"] = 0.9
+    assert not tau(0.0)["identified"]

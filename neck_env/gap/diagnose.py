@@ -41,9 +41,9 @@ import numpy as np
 from scipy.stats import f as f_dist
 
 from .. import effects as fx
+from ..physics.plant import cooling_time_constant_s
 from ..recording import Dataset
 from . import localize
-from ..physics.plant import cooling_time_constant_s
 from .fit import Candidate, Fitter, covariance
 from .model import (DRAFT_FROM, EFFECT_SPECS, SCANNED, STRUCTURE, SUPPLY_OFF_V, Model, ParamSpec,
                     Prediction, Prepared, drift_specs, is_drift_key, prepare, residual_parts,
@@ -648,8 +648,8 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
     keys = [s.key for s in cand.specs]
     derived = {}
     if "h_scale" in params and "heat_capacity_scale" in params:
-        derived["cooling_time_constant_s"] = _cooling_time_constant(fitter.model, cand, params,
-                                                                    corr)
+        derived["cooling_time_constant_s"] = _cooling_time_constant(fitter.model, cand.specs,
+                                                                    params, corr)
     for i in range(len(keys)):
         for j in range(i + 1, len(keys)):
             if abs(corr[i, j]) > 0.9:
@@ -661,19 +661,18 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
             "identifiable": [k for k, v in params.items() if v["identified"]], **derived}
 
 
-def _cooling_time_constant(model: Model, cand: Candidate, params: dict, corr: np.ndarray) -> dict:
+def _cooling_time_constant(model: Model, specs: Sequence[ParamSpec], params: dict,
+                           corr: np.ndarray) -> dict:
     """m c / (h A) of a spring, fitted: what cooling tails pin (h and the heat capacity trade
     within it), comparable with any rig's however its model splits the two. Its std by the
     delta method on the two log-scaled factors, with their fitted correlation; ``identified``
     as for a parameter, against the prior of the ratio."""
-    keys = [s.key for s in cand.specs]
-    spec = {s.key: s for s in cand.specs}
+    keys = [s.key for s in specs]
     i, j = keys.index("h_scale"), keys.index("heat_capacity_scale")
     h, c = params["h_scale"], params["heat_capacity_scale"]
     rh, rc = h["std"] / h["value"], c["std"] / c["value"]
     sd_log = math.sqrt(max(rh ** 2 + rc ** 2 - 2 * corr[i, j] * rh * rc, 0.0))
-    prior_log = math.hypot(spec["h_scale"].prior_sigma or 0.0,
-                           spec["heat_capacity_scale"].prior_sigma or 0.0)
+    prior_log = math.hypot(specs[i].prior_sigma or 0.0, specs[j].prior_sigma or 0.0)
     tau0 = cooling_time_constant_s(model.base)
     tau = tau0 * c["value"] / h["value"]
     return {"value": tau, "std": tau * sd_log, "default": tau0,
