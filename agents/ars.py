@@ -303,14 +303,13 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     fam = _Muscle(cfg, task_kwargs) if cfg.policy == "muscle" else _Residual(cfg, task_kwargs)
     theta = np.zeros(fam.size)
     lam = cfg.outside_weight_deg2
-    base_label = fam.reference
     val = list(cfg.validation_seeds)
     t0 = time.time()
     # the untrained policy (theta = 0: the base controller) on the validation episodes: the
     # reference of the curve; for the residual it also seeds the feature statistics
     base_mse, base_out = (a[0] for a in fam.play(theta[None], val))
     base_rmse = float(np.sqrt(base_mse.mean()))
-    log(f"{base_label} on {len(val)} validation episodes: RMSE {base_rmse:.3f} deg, within "
+    log(f"{fam.reference} on {len(val)} validation episodes: RMSE {base_rmse:.3f} deg, within "
         f"{WITHIN_DEG:g} deg {1 - base_out.mean():.3f} ({time.time() - t0:.0f} s)")
     curve = [(0, base_rmse, base_rmse, 0.0, float(1 - base_out.mean()))]
     best = (float((base_mse + lam * base_out).mean()), theta.copy(), fam.snapshot(), 0)
@@ -335,7 +334,7 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
             diff = np.sqrt(v) - np.sqrt(base_mse)
             curve.append((it, float(np.sqrt(v.mean())), base_rmse, float(diff.mean()),
                           float(1 - v_out.mean())))
-            line += (f"; validation RMSE {np.sqrt(v.mean()):.3f} deg ({base_label} {base_rmse:.3f}"
+            line += (f"; validation RMSE {np.sqrt(v.mean()):.3f} deg ({fam.reference} {base_rmse:.3f}"
                      f", paired mean {diff.mean():+.3f}, better in {int((diff < 0).sum())}/{len(val)}"
                      f", within {WITHIN_DEG:g} deg {1 - v_out.mean():.3f})")
             score = float((v + lam * v_out).mean())
@@ -345,7 +344,7 @@ def train(cfg: ARSConfig, out: Path, log=print) -> dict[str, Any]:
     wall = time.time() - t0
     _, theta_best, snap, it_best = best
     out.mkdir(parents=True, exist_ok=True)
-    _write_curve(out, curve, base_label)
+    _write_curve(out, curve, fam.reference)
     meta = fam.export(out / "policy", theta_best, snap, {
         "seed": cfg.seed, "iterations": cfg.iterations,
         "chosen_iteration": it_best, "wall_time_s": round(wall, 1),
@@ -359,33 +358,33 @@ def export(path: Path, W, b, mean, std, cfg: ARSConfig, task_kwargs: dict[str, A
            trained: dict[str, Any]) -> dict[str, Any]:
     """A residual policy: ``path``.zip (weights) + ``path``.json for
     ``agents.policy.DeployedPolicy``."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    LinearResidual(W, b).save(Path(path).with_suffix(".zip"))
     # DeployedPolicy's normalization: (x - mean) / sqrt(var + epsilon), clipped
     norm = {"mean": list(map(float, mean)), "var": list(map(float, std ** 2)), "clip": 1e9,
             "epsilon": 0.0}
-    return _write_meta(path, cfg, task_kwargs, trained, norm,
-                       residual={"base": cfg.base, "scale_A": cfg.scale_A})
+    return _write(path, LinearResidual(W, b), cfg, task_kwargs, trained, norm,
+                  residual={"base": cfg.base, "scale_A": cfg.scale_A})
 
 
 def export_muscle(path: Path, w, cfg: ARSConfig, task_kwargs: dict[str, Any],
                   trained: dict[str, Any]) -> dict[str, Any]:
     """A muscle-shared policy: ``path``.zip (its weights) + ``path``.json."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    MuscleWeights(w).save(Path(path).with_suffix(".zip"))
-    return _write_meta(path, cfg, task_kwargs, trained, None,
-                       muscle={"features": list(MUSCLE_FEATURE_NAMES)})
+    return _write(path, MuscleWeights(w), cfg, task_kwargs, trained, None,
+                  muscle={"features": list(MUSCLE_FEATURE_NAMES)})
 
 
-def _write_meta(path: Path, cfg: ARSConfig, task_kwargs: dict[str, Any],
-                trained: dict[str, Any], obs_norm: dict[str, Any] | None,
-                **kind: dict[str, Any]) -> dict[str, Any]:
-    """``path``.json of an ARS policy; ``kind``: ``residual=...`` or ``muscle=...``."""
+def _write(path: Path, weights, cfg: ARSConfig, task_kwargs: dict[str, Any],
+           trained: dict[str, Any], obs_norm: dict[str, Any] | None,
+           **kind: dict[str, Any]) -> dict[str, Any]:
+    """An ARS policy on disk: ``weights.save`` to ``path``.zip and its ``path``.json; ``kind``:
+    ``residual=...`` or ``muscle=...``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    weights.save(path.with_suffix(".zip"))
     env_kwargs = {k: v for k, v in task_kwargs.items() if k != "episode_s"}
     meta = {"algo": "ARS", "env_id": cfg.env_id, "env_kwargs": env_kwargs, "frame_stack": 1,
             "unit_actions": False, "obs_norm": obs_norm, **kind,
             "config": _config_json(cfg), "trained": trained}
-    Path(path).with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+    path.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
     return meta
 
 

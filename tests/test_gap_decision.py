@@ -11,7 +11,7 @@ import pytest
 from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, UNEXPLAINED_REST_DEG, Comparison,
                                    _cooling_time_constant, _draft_rebalanced, choose_holdout,
                                    responsible, rest_moves, significant)
-from neck_env.gap.model import nominal_specs
+from neck_env.gap.model import Model, nominal_specs
 from neck_env.params import default_params
 from neck_env.physics.plant import cooling_time_constant_s
 
@@ -147,7 +147,9 @@ def test_cooling_time_constant_is_the_ratio_of_heat_capacity_to_h_with_correlate
     specs = nominal_specs(25.0, 1.0)
     keys = [sp.key for sp in specs]
     i, j = keys.index("h_scale"), keys.index("heat_capacity_scale")
-    model = SimpleNamespace(base=default_params())
+    # the model's own parameter mapping on a stub of its state
+    model = SimpleNamespace(base=default_params(), data=SimpleNamespace(ambient=25.0))
+    model.params_of = lambda setting: Model.params_of(model, setting)
     tau0 = cooling_time_constant_s(model.base)
     params = {"h_scale": {"value": 2.0, "std": 0.2}, "heat_capacity_scale": {"value": 1.1, "std": 0.11}}
 

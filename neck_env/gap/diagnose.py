@@ -673,9 +673,9 @@ def _cooling_time_constant(model: Model, specs: Sequence[ParamSpec], params: dic
     rh, rc = h["std"] / h["value"], c["std"] / c["value"]
     sd_log = math.sqrt(max(rh ** 2 + rc ** 2 - 2 * corr[i, j] * rh * rc, 0.0))
     prior_log = math.hypot(specs[i].prior_sigma or 0.0, specs[j].prior_sigma or 0.0)
-    tau0 = cooling_time_constant_s(model.base)
-    tau = tau0 * c["value"] / h["value"]
-    return {"value": tau, "std": tau * sd_log, "default": tau0,
+    # the fitted values through the model's own parameter mapping (params_of), not again here
+    tau = cooling_time_constant_s(model.params_of({k: v["value"] for k, v in params.items()}))
+    return {"value": tau, "std": tau * sd_log, "default": cooling_time_constant_s(model.base),
             "identified": bool(prior_log > 0 and sd_log < 0.5 * prior_log),
             "doc": "m c / (h A) of a spring wire, s: the time constant of a cooling tail"}
 

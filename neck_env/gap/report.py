@@ -187,19 +187,19 @@ def text_report(rep: dict) -> str:
         L.append(f"    {k:20s} {heldout_fit.get(k, float('nan')):10.4g} | {v['value']:10.4g} +- {v['std']:<8.2g}"
                  f" {vs:10s}{'  at bound' if v['at_bound'] else ''}"
                  f"{'' if v.get('identified', True) else '  not identified by these data (held by its prior)'}")
+    not_identified = "NOT identified: record longer cooling tails (the rig protocol)"
     if "h_scale" in cal:
         h = cal["h_scale"]
         h0 = rep["calibration"]["h_default_W_m2K"]
         L.append(f"    convection h = {h0 * h['value']:.3g} +- {h0 * h['std']:.2g} W/m^2K "
-                 f"(default {h0:.3g}): {'identified by the cooling tails' if h.get('identified') else 'NOT identified: record longer cooling tails (the rig protocol)'}")
+                 f"(default {h0:.3g}): {'identified by the cooling tails' if h.get('identified') else not_identified}")
     tau = rep["calibration"].get("cooling_time_constant_s")
     if tau:
         L.append(f"    cooling time constant m c/(h A) = {tau['value']:.3g} +- {tau['std']:.2g} s "
                  f"(default {tau['default']:.3g} s): "
                  + ("identified by the cooling tails (compare this, not h, with another model "
                     "or a bench measurement: h trades with the heat capacity)"
-                    if tau["identified"] else "NOT identified: record longer cooling tails (the "
-                    "rig protocol)"))
+                    if tau["identified"] else not_identified))
     weak = rep["calibration"]["weak_directions"]
     if weak:
         L.append("    weakly identifiable: " + "; ".join(
