@@ -15,11 +15,20 @@ def _rig_state_dir(tmp_path_factory, monkeypatch):
 
 
 
-@pytest.fixture
-def gap_blind_script():
-    """``benchmarks/gap_blind.py`` as a module (the benchmarks are scripts, not a package)."""
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "gap_blind.py"
-    spec = importlib.util.spec_from_file_location("gap_blind", path)
+def _benchmark(name: str):
+    """``benchmarks/<name>.py`` as a module (the benchmarks are scripts, not a package)."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+@pytest.fixture
+def gap_blind_script():
+    return _benchmark("gap_blind")
+
+
+@pytest.fixture
+def gap_shapes_script():
+    return _benchmark("gap_shapes")

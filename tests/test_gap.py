@@ -327,6 +327,18 @@ def test_blind_independent_rig(tmp_path, effects, seed):
         assert rep["effects"][0]["name"] == effects[0]
 
 
+# Dataset shapes the blind suites never use (a small faithful version of
+# benchmarks/gap_shapes.py): another IMU rate, four recordings, no meta.json.
+@pytest.mark.parametrize("shape, effect", [("hz100", "imu_misalignment"),
+                                           ("nometa", "actuation_delay"),
+                                           ("rec4x30", "convection_change")])
+def test_unseen_dataset_shapes(tmp_path, gap_shapes_script, shape, effect):
+    gs = gap_shapes_script
+    r = gs.run(shape, effect, gs.seed_of(effect), tmp_path)
+    assert r["rc"] == 0
+    assert r["top"][0] == effect and effect in r["verdict"], r
+
+
 def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(
         tmp_path, capsys, gap_blind_script):
     gb = gap_blind_script
