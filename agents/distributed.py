@@ -220,6 +220,8 @@ class LocalCluster:
 
         k = len(self.nodes)
         head = self.address is None
+        if head:
+            self._ensure_token()
         port = _free_port()
         cmd = [sys.executable, "-m", "ray.scripts.scripts", "start", "--block",
                "--num-cpus", str(num_cpus), "--node-ip-address", self.NODE_IP,
@@ -248,6 +250,26 @@ class LocalCluster:
         if head:
             self.address = f"{self.NODE_IP}:{port}"
         return k
+
+    def _ensure_token(self) -> None:
+        """A token for the cluster's token authentication. ``ray start`` refuses to run
+        without one and, unlike ``ray.init``, never makes one, so on a machine that has never
+        run Ray (a fresh CI machine) no node would start. Made as Ray's own local clusters
+        make it (``ray get-auth-token --generate``: ``~/.ray/auth_token`` when there is none);
+        a token the user gave (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH``) is used as it is."""
+        import os
+        import subprocess
+        import sys
+
+        if os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH"):
+            return
+        # stdout is the token itself: never into a log. A Ray without the command (before
+        # token authentication) needs no token; any other failure is Ray's to explain when
+        # the head then does not start.
+        subprocess.run([sys.executable, "-m", "ray.scripts.scripts", "get-auth-token",
+                        "--generate"], env={**os.environ, **self.DRIVER_ENV},
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=120,
+                       check=False)
 
     def kill_node(self, k: int) -> None:
         """Kill node ``k`` at once (all its processes: raylet, workers), as a crash would."""
