@@ -46,10 +46,8 @@ def test_cli_pulse_matches_the_simulator(fw_binaries, tmp_path, capsys):
     on_s = on.sum() / ds.meta["sample_hz"]  # in the emulator's time (its telemetry)
     # the host holds the relay 4 s on its own clock
     assert on_s / speed == pytest.approx(4.0, abs=0.1)
-    # the simulator on the pulse as recorded: from its switch-on time, for as long as it was
-    # on in the emulator's time (the host times the 4 s on its own clock; an emulator that
-    # falls behind real time on a busy machine heats ~2 % shorter, and a 7 A pulse peaks
-    # ~0.6 deg lower for it)
+    # the simulator on the pulse as recorded, from its switch-on time for its on-time in the
+    # emulator's time: 2 % shorter heating peaks a 7 A pulse ~0.6 deg lower
     t_on = rec.t[np.argmax(on)]
     dt = 0.01
     traj, _ = simulate(constants_from_params(default_params()),
@@ -58,7 +56,8 @@ def test_cli_pulse_matches_the_simulator(fw_binaries, tmp_path, capsys):
     err = rec.theta_deg - sim
     rms = float(np.sqrt(np.mean(err ** 2)))
     print(f"\nCLI pulse 7 A x 4 s on muscle 3: peak {rec.theta_deg.max():.2f} deg (simulator "
-          f"{sim.max():.2f}), on {on_s:.2f} s at emulator speed {speed:.3f}, RMS difference {rms:.3f} deg; {out.out.strip().splitlines()[-1]}")
+          f"{sim.max():.2f}), on {on_s:.2f} s at emulator speed {speed:.3f}, RMS difference "
+          f"{rms:.3f} deg; {out.out.strip().splitlines()[-1]}")
     assert sim.max() > 10.0
     assert rms < 1.0 and abs(rec.theta_deg.max() - sim.max()) < 1.0
     # toward muscle 3 (azimuth 300 deg), up to the IMU's per-episode bias (~0.5 deg of tilt,
