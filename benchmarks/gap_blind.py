@@ -92,6 +92,16 @@ def cases(quick: bool) -> list[tuple[list[str], int]]:
     return out
 
 
+def diagnose_folder(ds: Path, rep_path: Path) -> tuple[int, dict, float]:
+    """The CLI on a dataset folder exactly as a user runs it (JSON, no plots, console
+    silenced): (exit code, report or {} on failure, seconds)."""
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):
+        rc = gap_main([str(ds), "--json", str(rep_path), "--no-plots", "--quiet"])
+    elapsed = time.perf_counter() - t0
+    return rc, (json.loads(Path(rep_path).read_text()) if rc == 0 else {}), elapsed
+
+
 def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: str = "default",
              generator: str = "synthetic", **generate_kwargs) -> dict:
     ds = root / f"ds_{seed}"
@@ -100,12 +110,7 @@ def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: st
         truth = generate_independent(ds, effects, seed=seed, baseline=baseline, **generate_kwargs)
     else:
         truth = generate(ds, effects, seed=seed, hard=hard, baseline=baseline, **generate_kwargs)
-    rep_path = root / f"report_{seed}.json"
-    t0 = time.perf_counter()
-    with contextlib.redirect_stdout(io.StringIO()):
-        rc = gap_main([str(ds), "--json", str(rep_path), "--no-plots", "--quiet"])
-    elapsed = time.perf_counter() - t0
-    rep = json.loads(rep_path.read_text()) if rc == 0 else {}
+    rc, rep, elapsed = diagnose_folder(ds, root / f"report_{seed}.json")
     return {"seed": seed, "truth": truth["effects"], "rc": rc, "report": rep, "seconds": elapsed,
             "baseline_truth": truth.get("baseline_ratios"), "physical_truth": truth.get("physical")}
 

@@ -16,18 +16,17 @@ samples).
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from neck_env import effects as fx
-from neck_env.gap.cli import main as gap_main
-from neck_env.gap.independent import generate
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gap_blind import diagnose_folder  # noqa: E402  (a sibling script)
+
+from neck_env import effects as fx  # noqa: E402
+from neck_env.gap.independent import generate  # noqa: E402
 
 SHAPES: dict[str, dict] = {
     "hz100": dict(sample_hz=100.0),
@@ -58,12 +57,7 @@ def run(shape: str, effect: str, seed: int, root: Path) -> dict:
     generate(ds, [effect] if effect else [], seed=seed, baseline="wide", **SHAPES[shape])
     if shape == "nometa":
         (ds / "meta.json").unlink()
-    rep_path = ds.with_name(ds.name + "_report.json")
-    t0 = time.perf_counter()
-    with contextlib.redirect_stdout(io.StringIO()):
-        rc = gap_main([str(ds), "--json", str(rep_path), "--no-plots", "--quiet"])
-    seconds = time.perf_counter() - t0
-    rep = json.loads(rep_path.read_text()) if rc == 0 else {}
+    rc, rep, seconds = diagnose_folder(ds, ds.with_name(ds.name + "_report.json"))
     top = [e["name"] for e in rep.get("effects", [])[:2]]
     verdict = rep.get("verdict")
     ok = (verdict == [] if not effect

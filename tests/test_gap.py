@@ -16,6 +16,7 @@ import pytest
 import neck_env  # noqa: F401  (registers NeckTrack-v0)
 from neck_env import effects as fx
 from neck_env.gap.cli import main as gap_main
+from neck_env.gap.model import tilt_vec
 from neck_env.gap.synthetic import generate
 from neck_env.params import default_params
 from neck_env.physics.plant import constants_from_params, simulate
@@ -109,31 +110,34 @@ def test_paper_phi_offset_is_imu_misalignment(tmp_path):
     env.close()
 
 
-def _tilt_vector(theta_deg, phi_deg) -> np.ndarray:
-    phi = np.radians(phi_deg)
-    return np.stack([theta_deg * np.cos(phi), theta_deg * np.sin(phi)], -1)
-
-
-def _replay_gap_deg(ds: Path, params, effects: dict, offset_deg: np.ndarray,
-                    n_rec: int = 4) -> np.ndarray:
+def _replay_gap_deg(ds: Path, params, offset_deg: np.ndarray, n_rec: int = 4) -> np.ndarray:
     """RMS tilt error (per component, deg) of NeckTrack-v0 replaying the first recordings'
     commanded currents against their measured tilt: the env at the recording's sample period
     (a 20 Hz step moves a switching edge by up to 40 ms, which a short pulse feels), without
-    the task's energy budget and over-temperature cut, the IMU's fitted zero offset added."""
+    the task's energy budget and over-temperature cut, the IMU's zero offset added."""
     out = []
     for rec in read_dataset(ds).recordings[:n_rec]:
-        env = gym.make("NeckTrack-v0", params=params, effects=effects,
+        env = gym.make("NeckTrack-v0", params=params, effects={},
                        dt=float(np.median(np.diff(rec.t))), energy_budget_J=float("inf"),
                        cutoff_C=float("inf"))
         env.reset(seed=0)
         # a row's current holds until the next row; the pose is compared at that next row
         infos = [env.step(rec.currents_A[k].astype(np.float32))[4] for k in range(rec.n - 1)]
         env.close()
-        sim = _tilt_vector(np.array([i["theta_deg"] for i in infos]),
-                           np.array([i["phi_deg"] for i in infos])) + offset_deg
-        meas = _tilt_vector(rec.theta_deg[1:], rec.phi_deg[1:])
+        sim = np.stack(tilt_vec(np.array([i["theta_deg"] for i in infos]),
+                                np.array([i["phi_deg"] for i in infos])), -1) + offset_deg
+        meas = np.stack(tilt_vec(rec.theta_deg[1:], rec.phi_deg[1:]), -1)
         out.append(float(np.sqrt(np.mean((sim - meas) ** 2))))
     return np.array(out)
+
+
+def _replay_export_and_defaults(ds: Path, rep: dict) -> tuple[np.ndarray, np.ndarray]:
+    """``_replay_gap_deg`` of an effect-free rig's export (with the fitted IMU zero offset)
+    and of the defaults."""
+    cal = rep["calibration"]["params"]
+    offset = np.array([cal["offset_x_deg"]["value"], cal["offset_y_deg"]["value"]])
+    return (_replay_gap_deg(ds, rep["outputs"]["params"], offset),
+            _replay_gap_deg(ds, None, np.zeros(2)))
 
 
 # A small faithful version of benchmarks/gap_blind.py: the same generator, random magnitudes in
@@ -170,10 +174,7 @@ def test_blind_small(tmp_path, effects, seed, baseline):
         assert tau["identified"]
         assert abs(tau["value"] / truth["physical"]["cooling_time_constant_s"] - 1) < 0.25
         # NeckTrack-v0 loaded from the export reproduces this rig (not the defaults' rig)
-        cal = rep["calibration"]["params"]
-        offset = np.array([cal["offset_x_deg"]["value"], cal["offset_y_deg"]["value"]])
-        exported = _replay_gap_deg(ds, rep["outputs"]["params"], {}, offset)
-        defaults = _replay_gap_deg(ds, None, {}, np.zeros(2))
+        exported, defaults = _replay_export_and_defaults(ds, rep)
         assert np.median(exported) < 0.15, exported
         assert np.all(exported < 0.1 * defaults), (exported, defaults)
     elif effects == ["gyro_bias_drift"]:
@@ -315,10 +316,7 @@ def test_blind_independent_rig(tmp_path, effects, seed):
         assert abs(tau["value"] / truth["physical"]["cooling_time_constant_s"] - 1) < 0.25
         # NeckTrack-v0 loaded from the export is this rig up to the structural misfit (the
         # held-out gap, ~0.3 deg): far closer than the defaults' rig
-        cal = rep["calibration"]["params"]
-        offset = np.array([cal["offset_x_deg"]["value"], cal["offset_y_deg"]["value"]])
-        exported = _replay_gap_deg(ds, rep["outputs"]["params"], {}, offset)
-        defaults = _replay_gap_deg(ds, None, {}, np.zeros(2))
+        exported, defaults = _replay_export_and_defaults(ds, rep)
         assert np.median(exported) < 2 * rep["effects"][0]["heldout_gap_before"], exported
         assert np.sqrt(np.mean(exported ** 2)) < 0.25 * np.sqrt(np.mean(defaults ** 2)), (
             exported, defaults)
