@@ -260,6 +260,24 @@ def test_bends_toward_driven_muscle_and_returns_when_cool(pc):
     assert tr.T_C[-1, 0, 1] < 30.0
 
 
+def test_fatigue_is_permanent_set_not_lost_strain(pc):
+    """A worn muscle (40 % of its recoverable strain turned into permanent set) rests exactly
+    where a fresh one does -- cold, its springs pull as before -- and bends less when hot, by
+    more the fuller the transformation (the set is paid back only in austenite). Strain that
+    vanished instead would shorten the cold springs and tilt the neck toward them at rest."""
+    worn_c = pc[:1].copy()
+    worn_c[:, L.FATIGUE_MAX] = 0.4  # rate 0: the wear stays as set
+    worn_x = initial_state(worn_c, 1)
+    worn_x[:, L.S_FATIGUE] = 0.4
+    cur = np.concatenate([np.zeros((200, 4, 3)), pulse_currents([5.0, 6.0, 7.0, 8.0], 0, 5.0, 10.0)])
+    fresh, _ = simulate(np.repeat(pc[:1], 4, axis=0), cur)
+    worn, _ = simulate(np.repeat(worn_c, 4, axis=0), cur, state=np.repeat(worn_x, 4, axis=0))
+    assert np.abs(worn.theta_deg[:200]).max() < 1e-9  # upright at rest
+    peak_fresh, peak_worn = fresh.theta_deg.max(axis=0), worn.theta_deg.max(axis=0)
+    assert np.all(peak_worn < peak_fresh)
+    assert peak_worn[3] < 0.8 * peak_fresh[3]  # 8 A: nearly full transformation
+
+
 def test_step_convergence(pc):
     """Halving the physics step (0.01 s -> 0.005 s) changes theta(t) by < 0.15 deg."""
     results = {}

@@ -208,7 +208,14 @@ def advance_rig(c, x, cur, dt, n_sub, budget, out, scratch):
             if c[CONV_TCOEF] != 0.0:
                 hA = max(c[HA] * c[CONV_GAIN] * (1.0 + c[CONV_TCOEF] * (temps[k] - c[AMBIENT])), 1e-9)
                 decay = math.exp(-dt * hA / c[HEAT_CAP])
-            gamma_L = c[GAMMA_L] * (1.0 - x[S_FATIGUE + k])
+            # Fatigue: the recoverable strain lost stays in the wire as permanent set (it
+            # lengthens the spring's free length), so the cold spring pulls as before and the
+            # hot one less; strain that vanished instead would shorten the cold spring.
+            lost = x[S_FATIGUE + k]
+            gamma_L = c[GAMMA_L] * (1.0 - lost)
+            set_ext = lost * c[GAMMA_L] / c[SHEAR_PER_EXT]
+            ext[k, 0] -= set_ext
+            ext[k, 1] -= set_ext
             xi_old = x[S_XI + k]
             T, xi, heating, scale, joule, conv = phase_thermal_step(
                 c, temps[k], xi_old, x[S_HEAT + k] > 0.5, x[S_SCALE + k], amps[k],
