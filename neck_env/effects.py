@@ -151,8 +151,10 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
         held=("onset_s",)),
     _effect(
         "sma_fatigue", "plant",
-        "bending amplitude falls from recording to recording as the springs cycle; "
-        "temperatures unchanged",
+        "bending amplitude falls from recording to recording as the springs cycle, most at "
+        "the currents that transform the springs fully; the rest reading does not move (the "
+        "recoverable strain lost stays in the wire as permanent set: the cold spring pulls as "
+        "before, the hot one less)",
         {"rate": (0.005, 0.05, "-", "loss of recoverable strain per unit transformed fraction"),
          "max_loss": (0.1, 0.5, "-", "cap on the loss, fraction of gamma_L")},
         {"rate": 0.02, "max_loss": 0.3},

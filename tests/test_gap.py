@@ -187,8 +187,7 @@ def test_blind_small(tmp_path, effects, seed, baseline):
     else:
         name = effects[0]
         assert rep["verdict"] == [name]
-        # nothing left unexplained: fatigue's unequal permanent set moves the rest reading
-        # through the dataset, and that drift is the verdict's own, not a sensor's
+        # nothing left unexplained (fatigue's permanent set leaves the rest reading alone)
         assert rep["unexplained"] is False, rep["unexplained_reasons"]
         best = rep["effects"][0]
         assert best["name"] == name

@@ -104,6 +104,10 @@ _DOC = """
 
     ## Version History
 
+    * v1 (2026-11-24, no change to the default dynamics): the opt-in `sma_fatigue` effect keeps
+      the recoverable strain it takes as permanent set, so a worn muscle bends less when hot
+      and rests where it did; before, the lost strain vanished, the cold springs pulled harder
+      and tilted the neck toward the worn muscle at rest (7 deg at 40 % loss).
     * v1: the energy budget binds a good controller and the actuation is the rig's
       (`neck_env.V1_KWARGS`: `energy_budget_J=900`, `actuation="firmware"`; both can still be
       overridden). The budget is chosen by a stated rule: the largest budget on a 100 J grid at

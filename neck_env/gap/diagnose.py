@@ -834,11 +834,11 @@ def _calibrate(run: _Run) -> _Baseline:
     nominal = fit_baseline(model, fitter, run.rng, max(run.max_iter, 20))
     run.lap("nominal_fit_s")
     plain = nominal
-    # A reading at rest that drifts steadily through the dataset is something almost no
-    # catalogued effect produces (only fatigue's unequal permanent set moves the upright
-    # reading between recordings). Left in, its mean would be blamed on a constant sensor
-    # effect (imu_misalignment); so the drift is fitted as a nuisance by every candidate, and
-    # reported as unexplained unless the verdict model holds the rest reading without it.
+    # A reading at rest that drifts steadily through the dataset is something no catalogued
+    # effect produces (a fatigued spring's permanent set leaves the cold spring's pull, and
+    # so the upright reading, as it was). Left in, its mean would be blamed on a constant
+    # sensor effect (imu_misalignment); so the drift is fitted as a nuisance by every
+    # candidate, and reported as unexplained.
     drift_found = None
     full_plain = model.predict_full([nominal.setting()])[0]  # also localized at the end
     st = rest_drift_stats(data, full_plain)
@@ -1004,18 +1004,10 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
     all_fitter.run([final_nominal, final] if verdict else [final_nominal], max_iter=run.max_iter)
     if not verdict:
         final = final_nominal
-    # the nuisance took a drift of the rest reading out of every fit; when the verdict's effects
-    # move the rest reading themselves (fatigue's unequal permanent set does), the drift is
-    # theirs, and their parameters are the ones fitted without the nuisance: refit so, and
-    # predict it in the same batch as the final models
-    bare = _without_nuisance(run, all_fitter, final) if base.drift_found and verdict else None
     # what is left to explain includes a drift fitted as a nuisance: predict without it
     shown = [{k: v for k, v in c.setting().items() if not is_drift_key(k)}
-             for c in (final_nominal, final, *([bare] if bare is not None else []))]
-    full_nom, full_cor, *full_bare = model.predict_full(shown)
-    drift_is_own = bool(full_bare) and _holds_rest(run, full_bare[0])
-    if drift_is_own:
-        final, full_cor = bare, full_bare[0]
+             for c in (final_nominal, final)]
+    full_nom, full_cor = model.predict_full(shown)
     calibration = calibration_summary(all_fitter, final_nominal)
     if verdict:
         calibration["corrected"] = calibration_summary(all_fitter, final)
@@ -1040,7 +1032,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                        f"(> {sys_tol:.2f} deg: {UNEXPLAINED_ABS_DEG} deg or "
                        f"{UNEXPLAINED_REL:.0%} of the RMS tilt {scale:.1f} deg)")
     ro, rest_spread, rest_drift, rest_r2 = rest_drift_stats(data, full_cor)
-    if base.drift_found and not drift_is_own:
+    if base.drift_found:
         # the nuisance has taken the drift out of the final residual: report it as first seen
         ro, rest_spread, rest_drift, rest_r2 = base.drift_found
     if rest_moves(rest_spread, rest_drift, rest_r2):
@@ -1070,27 +1062,6 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                      full={"nominal": full_nom, "corrected": full_cor,
                            "nominal_heldout": base.full_plain}, timing=run.timing,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp)
-
-
-def _without_nuisance(run: _Run, fitter: Fitter, final: Candidate) -> Candidate:
-    """The verdict model refitted (all recordings) without the drift nuisance."""
-    keep = [s for s in final.specs if not is_drift_key(s.key)]
-    bare = Candidate(final.name, final.effects, keep, dict(final.fixed))
-    bare.u = bare.u_from(final.values)
-    fitter.run([bare], max_iter=run.max_iter)
-    run.lap("rest_check_fit_s")
-    return bare
-
-
-def _holds_rest(run: _Run, full_pred: list[dict]) -> bool:
-    """The model fitted without the drift nuisance holds the rest reading where it is seen:
-    its rest offsets do not move (``rest_moves``)."""
-    _, spread, drift, r2 = rest_drift_stats(run.data, full_pred)
-    if math.isnan(spread) or rest_moves(spread, drift, r2):
-        return False
-    run.say(f"the rest reading's drift is the verdict's own: without the nuisance its rest "
-            f"offsets spread {spread:.2f} deg and drift {drift:.2f} deg (R^2 {r2:.2f})")
-    return True
 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,

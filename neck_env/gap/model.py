@@ -458,7 +458,6 @@ class Model:
         self.fit_tcum = np.array([self.t_cum0[r] + data.t[r][j] - data.t[r][0]
                                   for r, j in zip(data.fit_rec, data.fit_idx)])
         self.sim_count = 0  # rig-steps simulated, for timing reports
-        self._geo_cache: dict = {}
 
     # -- settings -> parameters / constants -----------------------------------------------------
     def params_of(self, setting: Mapping[str, float], source: str | None = None) -> NeckParams:

@@ -156,8 +156,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                            f"{D.UNEXPLAINED_REST_DEG} deg from first to last along a straight "
                            f"line with R^2 > {D.DRIFT_R2}; such a steady drift is "
                            f"fitted as a nuisance by every candidate so that no effect is blamed "
-                           f"for its mean, and is the verdict's own when the verdict model "
-                           f"without the nuisance does not move the rest so)",
+                           f"for its mean; no catalogued effect moves the rest reading)",
             "phases": "heating: a muscle commanded on; cooling: all off within 20 s of the last "
                       "switch-off; rest: otherwise",
         },
