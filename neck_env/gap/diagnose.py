@@ -1031,10 +1031,8 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
         reasons.append(f"systematic held-out residual {sys_rms:.2f} deg after the best model "
                        f"(> {sys_tol:.2f} deg: {UNEXPLAINED_ABS_DEG} deg or "
                        f"{UNEXPLAINED_REL:.0%} of the RMS tilt {scale:.1f} deg)")
-    ro, rest_spread, rest_drift, rest_r2 = rest_drift_stats(data, full_cor)
-    if base.drift_found:
-        # the nuisance has taken the drift out of the final residual: report it as first seen
-        ro, rest_spread, rest_drift, rest_r2 = base.drift_found
+    # a drift fitted as a nuisance is out of the final residual: report it as first seen
+    ro, rest_spread, rest_drift, rest_r2 = base.drift_found or rest_drift_stats(data, full_cor)
     if rest_moves(rest_spread, rest_drift, rest_r2):
         what = (f"drifts steadily through the dataset ({rest_drift:.2f} deg from first to "
                 f"last recording, R^2 = {rest_r2:.2f})" if rest_r2 > DRIFT_R2

@@ -213,9 +213,10 @@ def advance_rig(c, x, cur, dt, n_sub, budget, out, scratch):
             # hot one less; strain that vanished instead would shorten the cold spring.
             lost = x[S_FATIGUE + k]
             gamma_L = c[GAMMA_L] * (1.0 - lost)
-            set_ext = lost * c[GAMMA_L] / c[SHEAR_PER_EXT]
-            ext[k, 0] -= set_ext
-            ext[k, 1] -= set_ext
+            if lost > 0.0:
+                set_ext = lost * c[GAMMA_L] / c[SHEAR_PER_EXT]
+                ext[k, 0] -= set_ext
+                ext[k, 1] -= set_ext
             xi_old = x[S_XI + k]
             T, xi, heating, scale, joule, conv = phase_thermal_step(
                 c, temps[k], xi_old, x[S_HEAT + k] > 0.5, x[S_SCALE + k], amps[k],
