@@ -294,7 +294,8 @@ def test_thermistor_lag_reads_the_springs_late_and_shares_the_simulation(tmp_pat
 # inertia, exponential kinetics, integrator and Table 1 calibration, baseline drawn wide): the
 # model is knowingly wrong about its structure, so nothing may be blamed on effect-free data,
 # and an effect with a signature no baseline has is still named.
-INDEPENDENT = [([], 1000), (["imu_misalignment"], 1002), (["supply_limit"], 1005)]
+INDEPENDENT = [([], 1000), (["imu_misalignment"], 1002), (["supply_limit"], 1005),
+               (["thermal_coupling"], 1011)]
 
 
 @pytest.mark.parametrize("effects, seed", INDEPENDENT,
@@ -322,6 +323,12 @@ def test_blind_independent_rig(tmp_path, effects, seed):
     else:
         assert rep["verdict"] == effects
         assert rep["effects"][0]["name"] == effects[0]
+    if effects == ["thermal_coupling"]:
+        # thermistors recorded: the springs not yet powered warm as the coupled model predicts
+        # (this rig's structural misfit leaves the tilt evidence alone short of a verdict)
+        assert rep["temperatures_used"]
+        w = rep["effects"][0]["heldout_cold_neighbours_T"]
+        assert w["warms"] and w["F"] > w["F_crit"], w
 
 
 # Dataset shapes the blind suites never use (a small faithful version of
@@ -358,3 +365,37 @@ def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(
     with pytest.raises(SystemExit, match="resume with the same options"):
         gb.main(tiny + ["--resume", "--baseline", "wide"])
     assert (tmp_path / "report_1000.json").stat().st_mtime_ns == report_1000
+
+
+def test_only_heat_from_a_neighbour_warms_a_spring_not_yet_powered(tmp_path):
+    """The cold neighbours (a muscle not yet powered in its recording while another has been)
+    are where thermal coupling has a signature no baseline shift has: with coupling in the
+    data the coupled model's thermistor residual there falls far below the nominal one's,
+    while a larger convection coefficient or constant thermistor offsets give no such warming."""
+    from neck_env.gap import diagnose as D
+    from neck_env.gap import model as M
+
+    ds = tmp_path / "small"
+    generate(ds, [], seed=4, n_recordings=4, duration_s=15.0, temperatures=True)
+    data = M.prepare(read_dataset(ds))
+    mdl = M.Model(data)
+    base = {s.key: s.start for s in mdl.nominal}
+    nominal, coupled, draughty = mdl.predict([
+        base, dict(base, **{"thermal_coupling.conductance_W_K": 0.01}), dict(base, h_scale=2.0)])
+    cold = D.cold_neighbours(data)
+    assert cold.any() and not cold.all()
+    for r, rows in enumerate(data.rec_slices()):  # never a muscle once it has been powered
+        powered = np.maximum.accumulate(data.cmd[r] > 0, axis=0)[data.fit_idx[rows]]
+        assert not (cold[rows] & powered).any()
+    # the model's own muscles are thermally apart: a cold neighbour stays at ambient
+    assert np.allclose(nominal.T[cold], base["ambient_C"], atol=0.05)
+    assert (coupled.T[cold] - base["ambient_C"]).max() > 1.0
+    everywhere = np.ones(data.fit_rec.size, bool)
+    noise = np.random.default_rng(0).normal(0.0, 0.5, data.meas_T.shape)
+    data.meas_T = coupled.T + noise  # a rig with coupling
+    w = D.warming_compare(data, nominal, coupled, everywhere)
+    assert w.F > w.F_crit and w.reduction > 0.5, w
+    assert D.warming_compare(data, nominal, draughty, everywhere).reduction <= 0.0
+    # a rig without coupling whose thermistors read 0.4 C off: the coupled model is worse
+    data.meas_T = nominal.T + noise + np.array([0.4, -0.4, 0.4])
+    assert D.warming_compare(data, nominal, coupled, everywhere).reduction < 0.0

@@ -8,9 +8,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, UNEXPLAINED_REST_DEG, Comparison,
+from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, UNEXPLAINED_REST_DEG,
+                                   WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
                                    _cooling_time_constant, _draft_rebalanced, choose_holdout,
-                                   responsible, rest_moves, significant)
+                                   responsible, rest_moves, significant, warms)
 from neck_env.gap.model import Model, nominal_specs
 from neck_env.params import default_params
 from neck_env.physics.plant import cooling_time_constant_s
@@ -88,6 +89,32 @@ def test_responsible_also_beats_the_best_structural_discrepancy():
 def _split(peaks):
     recs = [SimpleNamespace(currents_A=np.array([[0.0, 0.0, 0.0], p], float)) for p in peaks]
     return choose_holdout(SimpleNamespace(recordings=recs))[0]
+
+
+def _warming(**kw) -> Warming:
+    base = dict(rms_before_C=0.9, rms_after_C=0.5, reduction=0.4 / 0.9, abs_reduction_C=0.4,
+                F=3.2, F_crit=1.5, n_eff=150.0, samples=2000)
+    base.update(kw)
+    return Warming(**base)
+
+
+def test_a_neighbours_warming_names_coupling_where_the_tilt_alone_cannot():
+    # the tilt evidence falls short (a rig's structural misfit dominates its held-out gap) ...
+    weak = _cmp(reduction=0.1, gap_after_deg=0.54, abs_reduction_deg=0.06, F=1.2, t=1.5)
+    assert not responsible(weak)
+    # ... but the springs not yet powered warm on the held-out thermistors as coupled
+    assert warms(replace(weak, warming=_warming()))
+    assert responsible(replace(weak, warming=_warming()))
+    # not by the F test, or below either practical margin: nothing
+    assert not responsible(replace(weak, warming=_warming(F=1.4)))
+    r = WARMING_MIN_REL - 0.01
+    assert not responsible(replace(weak, warming=_warming(reduction=r, rms_after_C=0.9 * (1 - r),
+                                                          abs_reduction_C=0.9 * r)))
+    a = WARMING_MIN_ABS_C - 0.01
+    assert not responsible(replace(weak, warming=_warming(rms_before_C=3 * a, rms_after_C=2 * a,
+                                                          reduction=1 / 3, abs_reduction_C=a)))
+    # the coupled model's tilt must be no worse than the nominal refit's
+    assert not responsible(replace(weak, reduction=-0.02, warming=_warming()))
 
 
 def test_no_held_out_recording_drives_a_muscle_beyond_the_fitting_set():

@@ -67,6 +67,14 @@ SCAN_SENSOR = 96  # scan points for sensor-only effects (no simulation needed)
 SCAN_GRID = {1: 5, 2: 3}  # per-axis scan points for plant effects with 1 or 2 parameters
 
 
+# Neighbour warming: with thermistors, a spring not yet powered in its recording warms only by
+# heat drained from a powered neighbour. No baseline parameter or structural discrepancy warms
+# it (the model's muscles are thermally apart), so this one signal is evidence for the one
+# catalogued effect that does, beside a tilt gap that is mostly a rig's structural misfit.
+WARMING_EFFECTS = ("thermal_coupling",)
+WARMING_MIN_REL = MIN_REL  # the cold neighbours' temperature residual (RMS) must fall by this ...
+WARMING_MIN_ABS_C = 0.1  # ... and by this much, C
+
 AMBIG_SIZE_DEG = 0.3  # an effect doing at least this much (RMS tilt, on vs off) ...
 AMBIG_SHIFT_SIGMA = 0.5  # ... while the baseline moved this many prior sigmas to make room
 AMBIG_WORSE = 0.03  # ... and the held-out gap is no more than 3 % worse than the nominal refit's
@@ -218,6 +226,21 @@ def heldout_neff(data: Prepared, pred: Prediction, mask: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
+class Warming:
+    """Held-out thermistor residual of the cold neighbours (``cold_neighbours``): "after"
+    against the reference "before"."""
+
+    rms_before_C: float
+    rms_after_C: float
+    reduction: float  # fraction of rms_before_C removed
+    abs_reduction_C: float
+    F: float  # (rms_before / rms_after)^2
+    F_crit: float  # F(n_eff, n_eff) at ALPHA
+    n_eff: float  # effective independent samples (AR(1) per recording and channel)
+    samples: int
+
+
+@dataclass(frozen=True)
 class Comparison:
     """Two fitted models on the held-out samples: "after" against the reference "before"."""
 
@@ -237,6 +260,7 @@ class Comparison:
     structure_significant: bool = False  # ... which is itself significant against the nominal
     vs_nominal: "Comparison | None" = None  # pairs: against the nominal refit
     accepted: bool | None = None  # pairs: accepted into the verdict
+    warming: Warming | None = None  # the cold neighbours' temperatures (WARMING_EFFECTS only)
 
 
 @dataclass(frozen=True)
@@ -288,8 +312,73 @@ def compare(data: Prepared, before: Prediction, after: Prediction, mask: np.ndar
 def responsible(c: Comparison) -> bool:
     """Significant against the nominal refit *and* beyond the best generic structural
     discrepancy (``vs_structure``): what a more flexible baseline explains as well is the
-    model's structure, not an effect."""
-    return significant(c) and beats_structure(c)
+    model's structure, not an effect. Or, for an effect that warms the cold neighbours
+    (``WARMING_EFFECTS``), that warming seen on the held-out thermistors (``warms``)."""
+    return (significant(c) and beats_structure(c)) or warms(c)
+
+
+def warms(c: Comparison) -> bool:
+    """The cold neighbours' held-out temperature residual falls by the F test and by a
+    practical margin (``WARMING_MIN_REL``, ``WARMING_MIN_ABS_C``), and the tilt is no worse
+    than the reference's: direct evidence no baseline shift or structural discrepancy can give
+    (they leave an unpowered spring at ambient)."""
+    w = c.warming
+    return (w is not None and w.F > w.F_crit and w.reduction >= WARMING_MIN_REL
+            and w.abs_reduction_C >= WARMING_MIN_ABS_C and c.reduction >= 0.0)
+
+
+def cold_neighbours(data: Prepared) -> np.ndarray | None:
+    """(M, 3) fit-rate samples x muscles: the muscle has not been powered yet in its recording
+    while another one has (its spring can only have warmed by heat from a neighbour). None
+    without thermistors."""
+    if data.meas_T is None:
+        return None
+    out = np.zeros((data.fit_rec.size, 3), bool)
+    for r, rows in enumerate(data.rec_slices()):
+        on = np.maximum.accumulate(data.cmd[r] > 0, axis=0)  # (n, 3) powered so far
+        on = on[data.fit_idx[rows]]
+        other = np.stack([on[:, [k for k in range(3) if k != m]].any(axis=1)
+                          for m in range(3)], axis=1)
+        out[rows] = ~on & other
+    return out & np.isfinite(data.meas_T)
+
+
+def warming_compare(data: Prepared, before: Prediction, after: Prediction,
+                    mask: np.ndarray) -> Warming | None:
+    """The cold neighbours' held-out thermistor residual of two fitted models (None: no
+    thermistors, or no cold neighbour among the held-out samples)."""
+    cold = cold_neighbours(data)
+    if cold is None:
+        return None
+    sel = cold & mask[:, None]
+    if sel.sum() < 10:
+        return None
+    e0 = np.where(sel, data.meas_T - before.T, 0.0)
+    e1 = np.where(sel, data.meas_T - after.T, 0.0)
+    n_eff = 0.0
+    for r in np.unique(data.fit_rec[mask]):
+        rows = data.fit_rec == r
+        for m in range(3):
+            s = sel[:, m] & rows
+            if s.sum() >= 3:
+                n_eff += min(_ar1_neff(e0[s, m]), _ar1_neff(e1[s, m]))
+    n_eff = max(n_eff, 2.0)
+    m0, m1 = float((e0 ** 2).sum() / sel.sum()), float((e1 ** 2).sum() / sel.sum())
+    g0, g1 = math.sqrt(m0), math.sqrt(m1)
+    return Warming(rms_before_C=g0, rms_after_C=g1, reduction=(g0 - g1) / g0 if g0 > 0 else 0.0,
+                   abs_reduction_C=g0 - g1, F=m0 / m1 if m1 > 0 else math.inf,
+                   F_crit=float(f_dist.ppf(1 - ALPHA, n_eff, n_eff)), n_eff=n_eff,
+                   samples=int(sel.sum()))
+
+
+def compare_effect(data: Prepared, before: Prediction, after: Candidate, mask: np.ndarray,
+                   reference_effects: Sequence[str] = ()) -> Comparison:
+    """``compare``, with the cold neighbours' temperatures when ``after`` adds an effect of
+    ``WARMING_EFFECTS`` that the reference lacks."""
+    c = compare(data, before, after.pred, mask)
+    if any(n in WARMING_EFFECTS and n not in reference_effects for n in after.effects):
+        c = replace(c, warming=warming_compare(data, before, after.pred, mask))
+    return c
 
 
 def beats_structure(c: Comparison) -> bool:
@@ -869,7 +958,7 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
     for c in singles:
         settle_draft(model, c, run.hold_rec, hold_mask)
     run.lap("single_fits_s")
-    single_cmp = {c.name: compare(data, nominal.pred, c.pred, hold_mask) for c in singles}
+    single_cmp = {c.name: compare_effect(data, nominal.pred, c, hold_mask) for c in singles}
     null_cmp = {c.name: compare(data, nominal.pred, c.pred, hold_mask) for c in nulls}
     nulls.sort(key=lambda c: null_cmp[c.name].gap_after_deg)
     best_null = nulls[0] if nulls and null_cmp[nulls[0].name].reduction > 0 else None
@@ -889,6 +978,11 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
         say(f"  {c.name:26s} held-out gap {s.gap_before_deg:.3f} -> {s.gap_after_deg:.3f} deg "
             f"({100 * s.reduction:+.0f} %, F = {s.F:.2f} > {s.F_crit:.2f}?, t = {s.t:.1f})"
             f"{'  *' if significant(s) else ''}")
+        if s.warming is not None:
+            w = s.warming
+            say(f"  {'':26s} cold neighbours' temperature {w.rms_before_C:.2f} -> "
+                f"{w.rms_after_C:.2f} C ({100 * w.reduction:+.0f} %, F = {w.F:.1f} > "
+                f"{w.F_crit:.2f}?){'  * warms' if warms(s) else ''}")
     return _Attribution(singles=singles, single_cmp=single_cmp, nulls=nulls, null_cmp=null_cmp,
                         best_null=best_null, rival=rival)
 
@@ -1075,12 +1169,12 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
         settle_draft(fitter.model, p, hold_rec, hold_mask)
     cmp: dict[str, Comparison] = {}
     for p in pairs:
-        c = replace(compare(data, reference(p).pred, p.pred, hold_mask),
+        c = replace(compare_effect(data, reference(p).pred, p, hold_mask, reference(p).effects),
                     vs_nominal=compare(data, nominal.pred, p.pred, hold_mask),
                     vs_structure=(compare(data, best_null.pred, p.pred, hold_mask)
                                   if best_null is not None else None),
                     structure_significant=rival)
-        accepted = bool(accept(c)) and beats_structure(c)
+        accepted = (bool(accept(c)) and beats_structure(c)) or (warms(c) and c.vs_nominal.reduction > 0)
         cmp[p.name] = replace(c, accepted=accepted)
     pairs.sort(key=lambda p: cmp[p.name].gap_after_deg)
     return cmp

@@ -42,6 +42,17 @@ def _r(x: float, n: int = 4) -> float | None:
     return None if math.isnan(x) else float(round(x, n))
 
 
+def _warming(s: "D.Comparison") -> dict:
+    """The cold neighbours' held-out temperatures (``D.warming_compare``), when compared."""
+    w = s.warming
+    if w is None:
+        return {}
+    return {"heldout_cold_neighbours_T": {
+        "rms_before_C": _r(w.rms_before_C), "rms_after_C": _r(w.rms_after_C),
+        "reduction": _r(w.reduction), "F": _r(w.F, 3), "F_crit": _r(w.F_crit, 3),
+        "n_eff": _r(w.n_eff, 1), "samples": w.samples, "warms": bool(D.warms(s))}}
+
+
 def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> dict:
     data = dg.data
     nom_cmp = D.gap_stats(data, dg.nominal.pred, D.sample_masks(data, dg.hold_rec)[1])
@@ -68,6 +79,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_theta_rmse_after": _r(g["theta_rmse"]),
             "heldout_phi_rmse_after": _r(g["phi_rmse"]),
             "signature": fx.EFFECTS[c.name].signature,
+            **_warming(s),
         })
     pairs = []
     for p in dg.pairs:
@@ -82,6 +94,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_reduction_vs_best_single": _r(s.reduction),
             "heldout_t_vs_best_single": _r(s.t, 2),
             "significant": bool(s.accepted),
+            **_warming(s),
         })
     loc = [{"signal": it["signal"], "phase": it["phase"], "muscle": it["muscle"],
             "share": _r(it["share"]), "time_fraction": _r(it["time_fraction"]),
@@ -148,7 +161,14 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                             f">= {D.MIN_REL:.0%} and >= {D.MIN_ABS_DEG} deg; and paired t over "
                             f"{D.BLOCK_S:g} s blocks > {D.T_CRIT}, or every held-out block improved "
                             f"(at least {D.MIN_BLOCKS_CONSISTENT}) with the F test, or every "
-                            f"held-out recording improved (at least {D.MIN_REC_CONSISTENT})",
+                            f"held-out recording improved (at least {D.MIN_REC_CONSISTENT}); "
+                            f"and beyond the best generic structural discrepancy. Or, for "
+                            f"{', '.join(D.WARMING_EFFECTS)} with thermistors: the held-out "
+                            f"temperature residual of the springs not yet powered in their "
+                            f"recording while a neighbour has been (only heat from a neighbour "
+                            f"warms them) falls by the F test at level {D.ALPHA}, by >= "
+                            f"{D.WARMING_MIN_REL:.0%} and >= {D.WARMING_MIN_ABS_C} C, with the "
+                            f"held-out tilt gap no worse",
             "unexplained": f"systematic (3 s smoothed) held-out residual of the final model > "
                            f"max({D.UNEXPLAINED_ABS_DEG} deg, {D.UNEXPLAINED_REL:.0%} of the RMS "
                            f"measured tilt), or the tilt read at rest moving through the dataset "
@@ -222,6 +242,11 @@ def text_report(rep: dict) -> str:
         ps = ", ".join(f"{k}={v:.3g}" for k, v in e["params"].items())
         L.append(f"  {'*' if e['significant'] else ' '} {e['name']:25s} {e['heldout_gap_before']:.3f} -> "
                  f"{e['heldout_gap_after']:.3f} deg ({100 * e['heldout_reduction']:+5.1f} %, t {e['heldout_t']:.1f})  {ps}")
+        w = e.get("heldout_cold_neighbours_T")
+        if w:
+            L.append(f"    {'':25s} unpowered springs' temperature {w['rms_before_C']:.2f} -> "
+                     f"{w['rms_after_C']:.2f} C ({100 * w['reduction']:+.0f} %, F {w['F']:.2f} "
+                     f"vs {w['F_crit']:.2f}){': they warm as the effect predicts' if w['warms'] else ''}")
     for p in rep["pairs"]:
         L.append(f"  {'*' if p['significant'] else ' '} pair {p['name']:30s} -> {p['heldout_gap_after']:.3f} deg "
                  f"({100 * p['heldout_reduction_vs_best_single']:+.1f} % vs its best single, t {p['heldout_t_vs_best_single']:.1f})")
