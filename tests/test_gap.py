@@ -196,6 +196,25 @@ def test_blind_small(tmp_path, effects, seed, baseline):
         assert set(truth["effects"]) == {name}
 
 
+def test_blind_pair_found_by_the_warming_of_the_cold_neighbours(tmp_path):
+    """A supply limit and thermal coupling (gap_blind's own-default seed 1034): coupling alone
+    makes the tilt worse (it is the supply limit the tilt needs) and the supply limit alone
+    falls short, but the springs not yet powered warm as coupling predicts; the pair of the two
+    is then tried, and named."""
+    ds = tmp_path / "ds"
+    generate(ds, ["supply_limit", "thermal_coupling"], seed=1034, baseline="default")
+    rep = _diagnose(ds, tmp_path)
+    _check_contract(rep)
+    single = {e["name"]: e for e in rep["effects"]}
+    coupling = single["thermal_coupling"]
+    assert coupling["heldout_reduction"] < 0 and not coupling["significant"]
+    w = coupling["heldout_cold_neighbours_T"]
+    assert w["F"] > w["F_crit"] and not w["warms"]  # the neighbours warm; the tilt is worse
+    assert not any(e["significant"] for e in rep["effects"])
+    assert sorted(rep["verdict"]) == ["supply_limit", "thermal_coupling"]
+    assert rep["corrected"]["heldout_reduction"] > 0.4
+
+
 # -- bad input: a clear error naming file and line, nothing written --------------------------
 
 GOOD = "t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.02,5,0,0,0.1,180\n0.04,5,0,0,0.2,180\n"

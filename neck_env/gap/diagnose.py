@@ -322,9 +322,13 @@ def warms(c: Comparison) -> bool:
     practical margin (``WARMING_MIN_REL``, ``WARMING_MIN_ABS_C``), and the tilt is no worse
     than the reference's: direct evidence no baseline shift or structural discrepancy can give
     (they leave an unpowered spring at ambient)."""
-    w = c.warming
+    return neighbours_warm(c.warming) and c.reduction >= 0.0
+
+
+def neighbours_warm(w: Warming | None) -> bool:
+    """The temperature half of ``warms``: the cold neighbours warm as the effect predicts."""
     return (w is not None and w.F > w.F_crit and w.reduction >= WARMING_MIN_REL
-            and w.abs_reduction_C >= WARMING_MIN_ABS_C and c.reduction >= 0.0)
+            and w.abs_reduction_C >= WARMING_MIN_ABS_C)
 
 
 def cold_neighbours(data: Prepared) -> np.ndarray | None:
@@ -1053,23 +1057,33 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         good = [p for p in pairs if pair_cmp[p.name].accepted]
         if good:
             verdict_c = good[0]
-    elif _systematic_rms(data, nominal.pred, run.hold_mask) > _unexplained_tol(data, run.hold_mask):
+    else:
         # No single effect is enough, yet a large systematic gap remains: two effects can each
         # explain too little of it alone (one masks the other). Try pairs of the best singles.
+        # Likewise when the cold neighbours warm as coupling predicts but coupling alone makes
+        # the tilt worse: another effect is in the tilt, so pairs with coupling.
+        large = (_systematic_rms(data, nominal.pred, run.hold_mask)
+                 > _unexplained_tol(data, run.hold_mask))
         top = singles[:PAIR_SEARCH]
-        for i in range(len(top)):
-            for j in range(i + 1, len(top)):
-                a, b = top[i], top[j]
-                vals = dict(a.setting())
-                vals.update({k: v for k, v in b.values.items() if split_key(k)[0] == b.effects[0]})
-                pairs.append(effect_candidate(model, [a.effects[0], b.effects[0]], {}, vals))
+        tried = ([(top[i], top[j]) for i in range(len(top)) for j in range(i + 1, len(top))]
+                 if large else [])
+        for w in [c for c in singles if neighbours_warm(single_cmp[c.name].warming)]:
+            have = {frozenset((x.name, y.name)) for x, y in tried}
+            tried += [(a, w) for a in top
+                      if a is not w and frozenset((a.name, w.name)) not in have]
+        for a, b in tried:
+            vals = dict(a.setting())
+            vals.update({k: v for k, v in b.values.items() if split_key(k)[0] == b.effects[0]})
+            pairs.append(effect_candidate(model, [a.effects[0], b.effects[0]], {}, vals))
         # each pair against its better member alone; responsible as a pair: significant
-        # against nominal, and better than that member by the F test (both members needed)
+        # against nominal, and better than that member by the F test (both members needed),
+        # or by the warming it adds to that member (the tilt still significant against nominal)
         better = lambda p: min((c for c in singles if c.effects[0] in p.effects),
                                key=lambda c: single_cmp[c.name].gap_after_deg)
-        pair_cmp = _fit_and_judge_pairs(
+        pair_cmp = (_fit_and_judge_pairs(
             fitter, data, pairs, better, nominal, run.hold_rec, run.hold_mask, run.max_iter,
-            lambda s: significant(s.vs_nominal) and s.F > s.F_crit, best_null, att.rival)
+            lambda s: significant(s.vs_nominal) and s.F > s.F_crit, best_null, att.rival,
+            warm_tilt=lambda s: significant(s.vs_nominal)) if pairs else {})
         for p in pairs:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s.vs_nominal.gap_before_deg:.3f} -> "
@@ -1159,11 +1173,13 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,
                          nominal: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray,
                          max_iter: int, accept, best_null: Candidate | None = None,
-                         rival: bool = False) -> dict[str, Comparison]:
+                         rival: bool = False,
+                         warm_tilt=lambda c: c.vs_nominal.reduction > 0) -> dict[str, Comparison]:
     """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)`` and
     with the nominal refit (``vs_nominal``), mark ``accepted`` by ``accept(comparison)`` and
-    ``beats_structure`` (``rival``: the best null is itself significant); sorts ``pairs`` best
-    first and returns the comparisons by name."""
+    ``beats_structure`` (``rival``: the best null is itself significant), or by ``warms`` with
+    ``warm_tilt(comparison)`` for the tilt; sorts ``pairs`` best first and returns the
+    comparisons by name."""
     fitter.run(pairs, max_iter=max_iter)
     for p in pairs:
         settle_draft(fitter.model, p, hold_rec, hold_mask)
@@ -1174,7 +1190,7 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
                     vs_structure=(compare(data, best_null.pred, p.pred, hold_mask)
                                   if best_null is not None else None),
                     structure_significant=rival)
-        accepted = (bool(accept(c)) and beats_structure(c)) or (warms(c) and c.vs_nominal.reduction > 0)
+        accepted = (bool(accept(c)) and beats_structure(c)) or (warms(c) and bool(warm_tilt(c)))
         cmp[p.name] = replace(c, accepted=accepted)
     pairs.sort(key=lambda p: cmp[p.name].gap_after_deg)
     return cmp
