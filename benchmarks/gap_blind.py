@@ -5,6 +5,7 @@
     python benchmarks/gap_blind.py --hard          # rigs further from the model
     python benchmarks/gap_blind.py --out runs/gap_blind --resume   # skip datasets already done
     python benchmarks/gap_blind.py --ray auto      # datasets as Ray tasks on a cluster
+    python benchmarks/gap_blind.py --generator independent --baseline wide --thermistors always
 
 Each case is a synthetic dataset (``neck_env.gap.synthetic``, seeded; effect magnitudes drawn
 uniformly in the catalogue ranges) diagnosed by the CLI exactly as a user runs it
@@ -274,11 +275,15 @@ def main(argv=None) -> int:
                     help="recordings per dataset (default: the generator's)")
     ap.add_argument("--duration", type=float, default=None,
                     help="seconds per recording (default: the generator's)")
+    ap.add_argument("--thermistors", choices=("drawn", "always", "never"), default="drawn",
+                    help="T1..T3 columns: drawn per dataset (the default), in every dataset (as "
+                    "a rig logging its thermistors records), or in none")
     add_ray_argument(ap, "datasets")
     args = ap.parse_args(argv)
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="gap_blind_"))
     root.mkdir(parents=True, exist_ok=True)
-    gen = {k: v for k, v in (("n_recordings", args.recordings), ("duration_s", args.duration))
+    gen = {k: v for k, v in (("n_recordings", args.recordings), ("duration_s", args.duration),
+                             ("temperatures", {"always": True, "never": False}.get(args.thermistors)))
            if v is not None}
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
     only = {int(x) for x in args.only.split(",")} if args.only else None
