@@ -401,7 +401,7 @@ def test_only_heat_from_a_neighbour_warms_a_spring_not_yet_powered(tmp_path):
     base = {s.key: s.start for s in mdl.nominal}
     nominal, coupled, draughty = mdl.predict([
         base, dict(base, **{"thermal_coupling.conductance_W_K": 0.01}), dict(base, h_scale=2.0)])
-    cold = D.cold_neighbours(data)
+    cold = data.cold_neighbours
     assert cold.any() and not cold.all()
     for r, rows in enumerate(data.rec_slices()):  # never a muscle once it has been powered
         powered = np.maximum.accumulate(data.cmd[r] > 0, axis=0)[data.fit_idx[rows]]

@@ -225,9 +225,14 @@ def heldout_neff(data: Prepared, pred: Prediction, mask: np.ndarray) -> float:
     return max(n, 2.0)
 
 
+def f_crit(n_eff: float) -> float:
+    """Critical ratio of two mean squares, each of ``n_eff`` effective samples, at ``ALPHA``."""
+    return float(f_dist.ppf(1 - ALPHA, n_eff, n_eff))
+
+
 @dataclass(frozen=True)
 class Warming:
-    """Held-out thermistor residual of the cold neighbours (``cold_neighbours``): "after"
+    """Held-out thermistor residual of the cold neighbours (``Prepared.cold_neighbours``): "after"
     against the reference "before"."""
 
     rms_before_C: float
@@ -295,7 +300,7 @@ def compare(data: Prepared, before: Prediction, after: Prediction, mask: np.ndar
     t = float(d.mean() / (sd / math.sqrt(n))) if sd > 0 else (math.inf if d.mean() > 0 else 0.0)
     n_eff = min(heldout_neff(data, before, mask), heldout_neff(data, after, mask))
     F = (g0 / g1) ** 2 if g1 > 0 else math.inf
-    F_crit = float(f_dist.ppf(1 - ALPHA, n_eff, n_eff))
+    F_crit = f_crit(n_eff)
     # per held-out recording: an improvement concentrated in a few 5 s blocks (a delay shows
     # only at switching edges) is still consistent when every recording shares it
     rec = data.fit_rec[mask]
@@ -331,27 +336,11 @@ def neighbours_warm(w: Warming | None) -> bool:
             and w.abs_reduction_C >= WARMING_MIN_ABS_C)
 
 
-def cold_neighbours(data: Prepared) -> np.ndarray | None:
-    """(M, 3) fit-rate samples x muscles: the muscle has not been powered yet in its recording
-    while another one has (its spring can only have warmed by heat from a neighbour). None
-    without thermistors."""
-    if data.meas_T is None:
-        return None
-    out = np.zeros((data.fit_rec.size, 3), bool)
-    for r, rows in enumerate(data.rec_slices()):
-        on = np.maximum.accumulate(data.cmd[r] > 0, axis=0)  # (n, 3) powered so far
-        on = on[data.fit_idx[rows]]
-        other = np.stack([on[:, [k for k in range(3) if k != m]].any(axis=1)
-                          for m in range(3)], axis=1)
-        out[rows] = ~on & other
-    return out & np.isfinite(data.meas_T)
-
-
 def warming_compare(data: Prepared, before: Prediction, after: Prediction,
                     mask: np.ndarray) -> Warming | None:
     """The cold neighbours' held-out thermistor residual of two fitted models (None: no
     thermistors, or no cold neighbour among the held-out samples)."""
-    cold = cold_neighbours(data)
+    cold = data.cold_neighbours
     if cold is None:
         return None
     sel = cold & mask[:, None]
@@ -371,7 +360,7 @@ def warming_compare(data: Prepared, before: Prediction, after: Prediction,
     g0, g1 = math.sqrt(m0), math.sqrt(m1)
     return Warming(rms_before_C=g0, rms_after_C=g1, reduction=(g0 - g1) / g0 if g0 > 0 else 0.0,
                    abs_reduction_C=g0 - g1, F=m0 / m1 if m1 > 0 else math.inf,
-                   F_crit=float(f_dist.ppf(1 - ALPHA, n_eff, n_eff)), n_eff=n_eff,
+                   F_crit=f_crit(n_eff), n_eff=n_eff,
                    samples=int(sel.sum()))
 
 
@@ -1047,7 +1036,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
                 f"pairs from {'each' if len(tied) > 1 else 'it'} too")
         # each pair against the best single (the verdict so far)
         pair_cmp = _fit_and_judge_pairs(fitter, data, pairs, lambda p: single, nominal,
-                                        run.hold_rec, run.hold_mask, run.max_iter, significant,
+                                        run.hold_rec, run.hold_mask, run.max_iter, responsible,
                                         best_null, att.rival)
         for p in pairs[:PAIR_TOP]:
             s = pair_cmp[p.name]
@@ -1082,8 +1071,9 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
                                key=lambda c: single_cmp[c.name].gap_after_deg)
         pair_cmp = (_fit_and_judge_pairs(
             fitter, data, pairs, better, nominal, run.hold_rec, run.hold_mask, run.max_iter,
-            lambda s: significant(s.vs_nominal) and s.F > s.F_crit, best_null, att.rival,
-            warm_tilt=lambda s: significant(s.vs_nominal)) if pairs else {})
+            lambda s: significant(s.vs_nominal) and (s.F > s.F_crit and beats_structure(s)
+                                                     or warms(s)),
+            best_null, att.rival) if pairs else {})
         for p in pairs:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s.vs_nominal.gap_before_deg:.3f} -> "
@@ -1173,24 +1163,23 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,
                          nominal: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray,
                          max_iter: int, accept, best_null: Candidate | None = None,
-                         rival: bool = False,
-                         warm_tilt=lambda c: c.vs_nominal.reduction > 0) -> dict[str, Comparison]:
-    """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)`` and
-    with the nominal refit (``vs_nominal``), mark ``accepted`` by ``accept(comparison)`` and
-    ``beats_structure`` (``rival``: the best null is itself significant), or by ``warms`` with
-    ``warm_tilt(comparison)`` for the tilt; sorts ``pairs`` best first and returns the
-    comparisons by name."""
+                         rival: bool = False) -> dict[str, Comparison]:
+    """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)``, with
+    the nominal refit (``vs_nominal``) and with the best structural discrepancy
+    (``vs_structure``; ``rival``: it is itself significant), mark ``accepted`` by
+    ``accept(comparison)``; sorts ``pairs`` best first and returns the comparisons by name."""
     fitter.run(pairs, max_iter=max_iter)
     for p in pairs:
         settle_draft(fitter.model, p, hold_rec, hold_mask)
     cmp: dict[str, Comparison] = {}
     for p in pairs:
-        c = replace(compare_effect(data, reference(p).pred, p, hold_mask, reference(p).effects),
+        ref = reference(p)
+        c = replace(compare_effect(data, ref.pred, p, hold_mask, ref.effects),
                     vs_nominal=compare(data, nominal.pred, p.pred, hold_mask),
                     vs_structure=(compare(data, best_null.pred, p.pred, hold_mask)
                                   if best_null is not None else None),
                     structure_significant=rival)
-        accepted = (bool(accept(c)) and beats_structure(c)) or (warms(c) and bool(warm_tilt(c)))
+        accepted = bool(accept(c))
         cmp[p.name] = replace(c, accepted=accepted)
     pairs.sort(key=lambda p: cmp[p.name].gap_after_deg)
     return cmp

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -333,6 +334,21 @@ class Prepared:
 
     def rec_slices(self) -> list[np.ndarray]:
         return [np.flatnonzero(self.fit_rec == r) for r in range(self.n_rec)]
+
+    @cached_property
+    def cold_neighbours(self) -> np.ndarray | None:
+        """(M, 3) fit-rate samples x muscles: the muscle has not been powered yet in its
+        recording while another one has, so its spring can only have warmed by heat from a
+        neighbour. None without thermistors. Computed once: every comparison of a coupled
+        model reads it."""
+        if self.meas_T is None:
+            return None
+        out = np.zeros((self.fit_rec.size, 3), bool)
+        for r, rows in enumerate(self.rec_slices()):
+            on = np.maximum.accumulate(self.cmd[r] > 0, axis=0)[self.fit_idx[rows]]  # powered so far
+            other = np.stack([np.delete(on, m, axis=1).any(axis=1) for m in range(3)], axis=1)
+            out[rows] = ~on & other
+        return out & np.isfinite(self.meas_T)
 
 
 def _sample_map(t_rel: np.ndarray, n_steps: int):
