@@ -187,10 +187,9 @@ def summarize(results: list[dict]) -> str:
     phys = {"h": [], "tau": []}
     for r in free:
         pt, cal = r.get("physical_truth") or {}, r["report"].get("calibration", {})
-        h = cal.get("params", {}).get("h_scale")
+        h = cal.get("convection_W_m2K")
         if h and "convection_W_m2K" in pt:
-            phys["h"].append((cal["h_default_W_m2K"] * h["value"] / pt["convection_W_m2K"] - 1,
-                              h.get("identified")))
+            phys["h"].append((h["value"] / pt["convection_W_m2K"] - 1, h.get("identified")))
         tau = cal.get("cooling_time_constant_s")
         if tau and "cooling_time_constant_s" in pt:
             phys["tau"].append((tau["value"] / pt["cooling_time_constant_s"] - 1,
@@ -278,12 +277,16 @@ def main(argv=None) -> int:
     ap.add_argument("--thermistors", choices=("drawn", "always", "never"), default="drawn",
                     help="T1..T3 columns: drawn per dataset (the default), in every dataset (as "
                     "a rig logging its thermistors records), or in none")
+    ap.add_argument("--no-wire-meta", action="store_true",
+                    help="leave the wire's diameter and specific heat out of meta.json (h is then "
+                    "not identifiable; the cooling time constant still is)")
     add_ray_argument(ap, "datasets")
     args = ap.parse_args(argv)
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="gap_blind_"))
     root.mkdir(parents=True, exist_ok=True)
     gen = {k: v for k, v in (("n_recordings", args.recordings), ("duration_s", args.duration),
-                             ("temperatures", {"always": True, "never": False}.get(args.thermistors)))
+                             ("temperatures", {"always": True, "never": False}.get(args.thermistors)),
+                             ("wire_meta", False if args.no_wire_meta else None))
            if v is not None}
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
     only = {int(x) for x in args.only.split(",")} if args.only else None

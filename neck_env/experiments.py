@@ -230,6 +230,8 @@ def add_dataset_arguments(ap: argparse.ArgumentParser, effect_names: Sequence[st
     tg.add_argument("--no-temperatures", dest="temperatures", action="store_false")
     ap.add_argument("--truth", default=None, help="truth JSON path (default: OUT_DIR.truth.json "
                     "beside the folder)")
+    ap.add_argument("--no-wire-meta", dest="wire_meta", action="store_false",
+                    help="leave the wire's diameter and specific heat out of meta.json")
 
 
 def dataset_arguments(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
@@ -244,4 +246,5 @@ def dataset_arguments(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
         raise ValueError("--recordings, --duration and --sample-hz must be positive")
     return effects, dict(seed=args.seed, protocol=args.protocol, n_recordings=args.recordings,
                          duration_s=args.duration, sample_hz=args.sample_hz,
-                         temperatures=args.temperatures, truth_path=args.truth)
+                         temperatures=args.temperatures, truth_path=args.truth,
+                         wire_meta=args.wire_meta)

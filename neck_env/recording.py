@@ -15,7 +15,8 @@ the tools that do not know them.
 
 A **dataset** is a folder of recordings (``*.csv``), in time order by file name (natural order:
 ``rec_2`` before ``rec_10``), with an optional ``meta.json`` holding ``ambient_C``,
-``sample_hz`` and ``muscle_azimuth_deg`` (three angles). Other files in the folder are ignored
+``sample_hz``, ``muscle_azimuth_deg`` (three angles) and the springs' wire,
+``spring_wire_diameter_m`` and ``spring_specific_heat_J_kgK``. Other files in the folder are ignored
 (the synthetic generator writes its ground truth *outside* the folder).
 
 Every reading error is a :class:`RecordingError` (a ``ValueError``) whose message names the
@@ -43,7 +44,12 @@ import numpy as np
 
 REQUIRED_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg")
 TEMPERATURE_COLUMNS = ("T1", "T2", "T3")
-META_KEYS = ("ambient_C", "sample_hz", "muscle_azimuth_deg")
+META_KEYS = ("ambient_C", "sample_hz", "muscle_azimuth_deg", "spring_wire_diameter_m",
+             "spring_specific_heat_J_kgK")
+# What a rig builder can measure or read off the wire's datasheet, with the range a spring of
+# 4-8 A can lie in; the bounds catch a value in the wrong unit (0.5 meant as mm).
+WIRE_META_RANGES = {"spring_wire_diameter_m": (5e-5, 5e-3, "m, e.g. 0.0005 for 0.5 mm"),
+                    "spring_specific_heat_J_kgK": (100.0, 2000.0, "J/(kg K), e.g. 837")}
 META_FILE = "meta.json"
 
 
@@ -249,6 +255,14 @@ def read_meta(path: str | Path) -> dict[str, Any]:
         raise RecordingError(path, f"sample_hz must be > 0, got {data['sample_hz']!r}")
     if "ambient_C" in data and data["ambient_C"] is not None and not -40 <= data["ambient_C"] <= 60:
         raise RecordingError(path, f"ambient_C must lie in [-40, 60] C, got {data['ambient_C']!r}")
+    for key, (lo, hi, unit) in WIRE_META_RANGES.items():
+        v = data.get(key)
+        if v is None:
+            continue
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
+            raise RecordingError(path, f"{key} must be a finite number, got {v!r}")
+        if not lo <= v <= hi:
+            raise RecordingError(path, f"{key} must lie in [{lo:g}, {hi:g}] ({unit}), got {v!r}")
     az = data.get("muscle_azimuth_deg")
     if az is not None:
         if not (isinstance(az, list) and len(az) == 3 and all(

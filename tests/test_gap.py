@@ -166,10 +166,12 @@ def test_blind_small(tmp_path, effects, seed, baseline):
     _check_contract(rep)
     if not effects:
         assert rep["verdict"] == [] and rep["unexplained"] is False
-        # the baseline is recovered: h from the cooling tails within 25 % of the truth
-        h = rep["calibration"]["params"]["h_scale"]
-        assert h["identified"]
-        assert abs(h["value"] / truth["baseline_ratios"]["h_scale"] - 1) < 0.25
+        # the baseline is recovered: h from the cooling tails and the wire meta.json gives
+        # (its datasheet specific heat, not the rig's drawn one) within 25 % of the truth
+        h = rep["calibration"]["convection_W_m2K"]
+        assert h["identified"] and h["wire"] == "meta.json"
+        assert abs(h["value"] / truth["physical"]["convection_W_m2K"] - 1) < 0.25
+        assert rep["calibration"]["params"]["h_scale"]["identified"]
         tau = rep["calibration"]["cooling_time_constant_s"]
         assert tau["identified"]
         assert abs(tau["value"] / truth["physical"]["cooling_time_constant_s"] - 1) < 0.25
@@ -328,11 +330,16 @@ def test_blind_independent_rig(tmp_path, effects, seed):
     _check_contract(rep)
     if not effects:
         assert rep["verdict"] == []
-        # its h differs from ours by its wire's heat capacity per area, but the time constant
-        # of a cooling tail is the same physical figure in both models
+        # the time constant of a cooling tail is the same physical figure in both models; h
+        # follows from it for the wire meta.json gives (its heat capacity per area is not ours)
         tau = rep["calibration"]["cooling_time_constant_s"]
         assert tau["identified"]
         assert abs(tau["value"] / truth["physical"]["cooling_time_constant_s"] - 1) < 0.25
+        h = rep["calibration"]["convection_W_m2K"]
+        assert h["identified"] and h["wire_diameter_m"] == pytest.approx(0.9e-3)
+        assert abs(h["value"] / truth["physical"]["convection_W_m2K"] - 1) < 0.25
+        # on the model's own 0.8 mm wire, the same tail gives another h, and says it is not pinned
+        assert h["model_h_W_m2K"] > 1.1 * h["value"]
         # NeckTrack-v0 loaded from the export is this rig up to the structural misfit (the
         # held-out gap, ~0.3 deg): far closer than the defaults' rig
         exported, defaults = _replay_export_and_defaults(ds, rep)

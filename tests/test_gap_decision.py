@@ -10,7 +10,7 @@ import pytest
 
 from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, UNEXPLAINED_REST_DEG,
                                    WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
-                                   _cooling_time_constant, _draft_rebalanced, choose_holdout,
+                                   _convection, _cooling_time_constant, _draft_rebalanced, choose_holdout,
                                    responsible, rest_moves, significant, warms)
 from neck_env.gap.model import Model, nominal_specs
 from neck_env.params import default_params
@@ -195,3 +195,33 @@ def test_cooling_time_constant_is_the_ratio_of_heat_capacity_to_h_with_correlate
     assert tau(0.0)["identified"]
     params["h_scale"]["std"] = 0.9
     assert not tau(0.0)["identified"]
+
+
+def test_h_in_physical_units_needs_the_wire_whose_heat_capacity_it_trades_with():
+    """Recordings pin tau = m c/(h A): h = rho c d / (4 tau) only for a given wire."""
+    base = default_params()
+    tau = {"value": 20.0, "std": 1.0, "identified": True}
+    params = {"h_scale": {"value": 1.5, "std": 0.15}, "heat_capacity_scale": {"value": 0.9}}
+
+    def conv(d=None, c=None, identified=True):
+        data = SimpleNamespace(wire_diameter_m=d, specific_heat_J_kgK=c)
+        return _convection(SimpleNamespace(data=data, base=base), params,
+                           dict(tau, identified=identified))
+
+    # a 0.5 mm wire of 322 J/kgK (Flexinol's datasheet): 6450 * 322 * 0.5e-3 / 4 / 20 s
+    h = conv(0.5e-3, 322.0)
+    assert h["value"] == pytest.approx(12.98, abs=0.01) and h["identified"]
+    assert h["std"] / h["value"] == pytest.approx(0.05)  # tau's relative error
+    assert not conv(0.5e-3, 322.0, identified=False)["identified"]  # no cooling tails: no h
+    # one of the two given: computed with the model's other constant, not identified
+    part = conv(0.5e-3)
+    assert not part["identified"] and part["missing"] == ["spring_specific_heat_J_kgK"]
+    assert part["value"] == pytest.approx(6450 * base.material.specific_heat_J_kgK * 0.5e-3 / 4 / 20)
+    # neither: the model's own h on its wire, which its cooling time constant gives back
+    none = conv()
+    assert not none["identified"] and len(none["missing"]) == 2
+    assert none["value"] == pytest.approx(base.thermal.convection_W_m2K * 1.5)
+    fitted = base.replace(thermal__convection_W_m2K=none["value"],
+                          material__specific_heat_J_kgK=none["specific_heat_J_kgK"])
+    assert none["heat_capacity_per_area_J_m2K"] / none["value"] == pytest.approx(
+        cooling_time_constant_s(fitted))

@@ -98,6 +98,16 @@ def test_dataset_errors(tmp_path):
     (tmp_path / "meta.json").write_text('{oops')
     with pytest.raises(RecordingError, match="meta.json.*not valid JSON"):
         read_dataset(tmp_path)
+    # a wire diameter in mm, not m, names the unit it wants
+    (tmp_path / "meta.json").write_text('{"spring_wire_diameter_m": 0.5}')
+    with pytest.raises(RecordingError, match=r"spring_wire_diameter_m.*0\.0005 for 0\.5 mm"):
+        read_dataset(tmp_path)
+    (tmp_path / "meta.json").write_text('{"spring_specific_heat_J_kgK": true}')
+    with pytest.raises(RecordingError, match="spring_specific_heat_J_kgK must be a finite number"):
+        read_dataset(tmp_path)
+    (tmp_path / "meta.json").write_text('{"spring_wire_diameter_m": 0.0005, '
+                                        '"spring_specific_heat_J_kgK": 322}')
+    assert read_dataset(tmp_path).meta["spring_specific_heat_J_kgK"] == 322
 
 
 def test_write_read_round_trip(tmp_path):

@@ -730,8 +730,11 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
     keys = [s.key for s in cand.specs]
     derived = {}
     if "h_scale" in params and "heat_capacity_scale" in params:
-        derived["cooling_time_constant_s"] = _cooling_time_constant(fitter.model, cand.specs,
-                                                                    params, corr)
+        tau = _cooling_time_constant(fitter.model, cand.specs, params, corr)
+        derived["cooling_time_constant_s"] = tau
+        derived["convection_W_m2K"] = _convection(fitter.model, params, tau)
+        # the multiplier is the model's h on the model's wire: the data pin it no better than h
+        params["h_scale"]["identified"] = derived["convection_W_m2K"]["identified"]
     for i in range(len(keys)):
         for j in range(i + 1, len(keys)):
             if abs(corr[i, j]) > 0.9:
@@ -760,6 +763,39 @@ def _cooling_time_constant(model: Model, specs: Sequence[ParamSpec], params: dic
     return {"value": tau, "std": tau * sd_log, "default": cooling_time_constant_s(model.base),
             "identified": bool(prior_log > 0 and sd_log < 0.5 * prior_log),
             "doc": "m c / (h A) of a spring wire, s: the time constant of a cooling tail"}
+
+
+def _convection(model: Model, params: dict, tau: dict) -> dict:
+    """h in W/m^2K as the rig's wire gives it: its heat capacity per unit surface over the
+    fitted cooling time constant, h = rho c d / (4 tau).
+
+    Current-driven recordings pin tau = m c/(h A) (cooling tails) and the heating rate
+    I^2 R/(m c), never m c itself, so any split of h and heat capacity with the same tau fits
+    them alike: h is identified only for a wire whose diameter and specific heat meta.json
+    gives. Without them the value is the model's own h, on its assumed wire, and says so."""
+    data, base = model.data, model.base
+    rho = base.material.density_kg_m3  # NiTi's, well known (datasheet 6.45 g/cm3)
+    given = {"spring_wire_diameter_m": data.wire_diameter_m,
+             "spring_specific_heat_J_kgK": data.specific_heat_J_kgK}
+    missing = [k for k, v in given.items() if v is None]
+    h_model = base.thermal.convection_W_m2K * params["h_scale"]["value"]
+    if len(missing) == 2:
+        # the model's own h, on its wire: the same tau, the fitted heat capacity
+        d = base.spring.wire_diameter_m
+        c = base.material.specific_heat_J_kgK * params["heat_capacity_scale"]["value"]
+        h, rel = h_model, params["h_scale"]["std"] / params["h_scale"]["value"]
+    else:
+        d = data.wire_diameter_m if data.wire_diameter_m is not None else base.spring.wire_diameter_m
+        c = (data.specific_heat_J_kgK if data.specific_heat_J_kgK is not None
+             else base.material.specific_heat_J_kgK)
+        h, rel = rho * c * d / 4 / tau["value"], tau["std"] / tau["value"]
+    return {"value": h, "std": h * rel, "identified": bool(tau["identified"] and not missing),
+            "tau_identified": bool(tau["identified"]),
+            "wire": "meta.json" if not missing else
+                    "the model's (assumed)" if len(missing) == 2 else "meta.json, partly assumed",
+            "missing": missing, "wire_diameter_m": d, "specific_heat_J_kgK": c,
+            "heat_capacity_per_area_J_m2K": rho * c * d / 4, "model_h_W_m2K": h_model,
+            "doc": "convection coefficient h = rho c d / (4 tau), W/m^2K"}
 
 
 def _identified(spec: ParamSpec, std: float, params: dict) -> bool:

@@ -946,8 +946,11 @@ def _resolve_effects(effects, rng: np.random.Generator, p: RigParams, n_rec: int
 def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "mixed",
              n_recordings: int = 15, duration_s: float = 30.0, sample_hz: float = 50.0,
              temperatures: bool | None = None, baseline: str = "wide",
-             truth_path: str | Path | None = None) -> dict:
+             truth_path: str | Path | None = None, wire_meta: bool = True) -> dict:
     """Write a dataset of this independent rig to ``out_dir`` and its truth beside it.
+
+    ``wire_meta``: meta.json gives the wire as its builder knows it: the diameter, and the
+    datasheet's specific heat (the calibrated value), not this rig's drawn one.
 
     ``effects``: None, a list of names, a comma-separated string or a mapping name -> parameters
     (given parameters override the drawn ones). Returns the truth dict."""
@@ -1014,8 +1017,11 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         write_recording(out_dir / fname, cols)
         rec_truth.append({"file": fname, "protocol": rec.description, "h_multiplier": hmul,
                           "max_theta_true_deg": round(float(sim["theta_deg"].max()), 3)})
-    write_meta(out_dir, {"ambient_C": round(p.ambient_C + float(r_base.uniform(-0.3, 0.3)), 2),
-                         "sample_hz": sample_hz, "muscle_azimuth_deg": list(MUSCLE_AZIMUTH_DEG)})
+    meta = {"ambient_C": round(p.ambient_C + float(r_base.uniform(-0.3, 0.3)), 2),
+            "sample_hz": sample_hz, "muscle_azimuth_deg": list(MUSCLE_AZIMUTH_DEG)}
+    if wire_meta:
+        meta.update(spring_wire_diameter_m=WIRE_D_M, spring_specific_heat_J_kgK=CALIBRATED.c_p_J_kgK)
+    write_meta(out_dir, meta)
     base = {f.name: getattr(p, f.name) for f in fields(p)}
     base.update({"convection_W_m2K": p.h_W_m2K,
                  "cooling_time_constant_s": _cooling_time_constant_s(p),

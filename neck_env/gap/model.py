@@ -331,6 +331,10 @@ class Prepared:
     ambient_source: str
     azimuths: tuple[float, float, float]
     sample_hz: float
+    # the rig's wire as meta.json gives it (None: not given): converts the fitted cooling time
+    # constant into h, which the recordings alone cannot (h trades with the heat capacity)
+    wire_diameter_m: float | None = None
+    specific_heat_J_kgK: float | None = None
 
     def rec_slices(self) -> list[np.ndarray]:
         return [np.flatnonzero(self.fit_rec == r) for r in range(self.n_rec)]
@@ -422,7 +426,9 @@ def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
         cmd=[r.currents_A for r in recs], has_T=has_T, fit_rec=fit_rec, fit_idx=fit_idx,
         fit_k0=k0, fit_w=w, grid_steps=steps, grid_pos0=pos0, grid_pos1=pos1,
         meas_theta=meas_theta, meas_phi=meas_phi, meas_T=meas_T, ambient=ambient,
-        ambient_sigma=amb_sig, ambient_source=src, azimuths=az, sample_hz=sample_hz)
+        ambient_sigma=amb_sig, ambient_source=src, azimuths=az, sample_hz=sample_hz,
+        wire_diameter_m=ds.meta.get("spring_wire_diameter_m"),
+        specific_heat_J_kgK=ds.meta.get("spring_specific_heat_J_kgK"))
 
 
 # --------------------------------------------------------------------------------------------

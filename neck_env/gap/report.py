@@ -205,20 +205,28 @@ def text_report(rep: dict) -> str:
               f"{v['value'] - v['default']:+.3g} C" if k.endswith("shift_C") else "")
         L.append(f"    {k:20s} {heldout_fit.get(k, float('nan')):10.4g} | {v['value']:10.4g} +- {v['std']:<8.2g}"
                  f" {vs:10s}{'  at bound' if v['at_bound'] else ''}"
-                 f"{'' if v.get('identified', True) else '  not identified by these data (held by its prior)'}")
+                 f"{'' if v.get('identified', True) else '  not identified alone: only as m c/(h A) (below)' if k == 'h_scale' and rep['calibration'].get('cooling_time_constant_s', {}).get('identified') else '  not identified by these data (held by its prior)'}")
     not_identified = "NOT identified: record longer cooling tails (the rig protocol)"
-    if "h_scale" in cal:
-        h = cal["h_scale"]
-        h0 = rep["calibration"]["h_default_W_m2K"]
-        L.append(f"    convection h = {h0 * h['value']:.3g} +- {h0 * h['std']:.2g} W/m^2K "
-                 f"(default {h0:.3g}): {'identified by the cooling tails' if h.get('identified') else not_identified}")
     tau = rep["calibration"].get("cooling_time_constant_s")
     if tau:
         L.append(f"    cooling time constant m c/(h A) = {tau['value']:.3g} +- {tau['std']:.2g} s "
                  f"(default {tau['default']:.3g} s): "
-                 + ("identified by the cooling tails (compare this, not h, with another model "
-                    "or a bench measurement: h trades with the heat capacity)"
-                    if tau["identified"] else not_identified))
+                 + ("identified by the cooling tails (the thermal figure to compare with another "
+                    "model or a bench measurement)" if tau["identified"] else not_identified))
+    h = rep["calibration"].get("convection_W_m2K")
+    if h:
+        wire = (f"d {1e3 * h['wire_diameter_m']:.3g} mm, c {h['specific_heat_J_kgK']:.0f} J/kgK, "
+                f"{h['heat_capacity_per_area_J_m2K']:.0f} J/m^2K per unit surface")
+        if h["identified"]:
+            why = f"identified: the cooling tails' time constant on your wire ({wire}, meta.json)"
+        elif not h["tau_identified"]:
+            why = not_identified
+        else:
+            why = (f"NOT identified: the recordings pin the time constant, not h (h trades with the "
+                   f"heat capacity); this is h on {'the model' if len(h['missing']) == 2 else 'a partly assumed'}"
+                   f" wire ({wire}); give {' and '.join(h['missing'])} in meta.json for yours")
+        L.append(f"    convection h = {h['value']:.3g} +- {h['std']:.2g} W/m^2K "
+                 f"(default {rep['calibration']['h_default_W_m2K']:.3g}): {why}")
     weak = rep["calibration"]["weak_directions"]
     if weak:
         L.append("    weakly identifiable: " + "; ".join(

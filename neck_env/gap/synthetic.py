@@ -184,8 +184,12 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
              n_recordings: int = 15, duration_s: float = 30.0, sample_hz: float = 50.0,
              temperatures: bool | None = None, jitter: float = 0.05,
              truth_path: str | Path | None = None, sensors: SensorParams | None = None,
-             write_meta_file: bool = True, hard: bool = False, baseline: str = "default") -> dict:
+             write_meta_file: bool = True, hard: bool = False, baseline: str = "default",
+             wire_meta: bool = True) -> dict:
     """Write a synthetic dataset to ``out_dir`` and its truth beside it; returns the truth.
+
+    ``wire_meta``: meta.json gives the wire as its builder knows it: the diameter, and the
+    specific heat of the datasheet (the defaults'), not this rig's drawn one.
 
     ``baseline``: ``default`` (the calibrated values perturbed by a few per cent) or ``wide``
     (a rig far from the defaults, ``wide_params``). ``hard``: a rig further from the model
@@ -273,6 +277,9 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         t_cum += t[-1]
     meta = {"ambient_C": round(params.thermal.ambient_C + float(rng.normal(0.0, 0.3)), 1),
             "sample_hz": sample_hz, "muscle_azimuth_deg": list(params.muscles.azimuths_deg)}
+    if wire_meta:
+        meta.update(spring_wire_diameter_m=params.spring.wire_diameter_m,
+                    spring_specific_heat_J_kgK=default_params().material.specific_heat_J_kgK)
     if write_meta_file:
         write_meta(out_dir, meta)
     truth = {
