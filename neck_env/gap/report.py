@@ -53,6 +53,15 @@ def _warming(s: "D.Comparison") -> dict:
         "n_eff": _r(w.n_eff, 1), "samples": w.samples, "warms": bool(D.warms(s))}}
 
 
+def _warming_line(L: list[str], entry: dict) -> None:
+    """The cold neighbours' temperatures under an effect's or a pair's line, when compared."""
+    w = entry.get("heldout_cold_neighbours_T")
+    if w:
+        L.append(f"    {'':25s} unpowered springs' temperature {w['rms_before_C']:.2f} -> "
+                 f"{w['rms_after_C']:.2f} C ({100 * w['reduction']:+.0f} %, F {w['F']:.2f} "
+                 f"vs {w['F_crit']:.2f}){': they warm as the effect predicts' if w['warms'] else ''}")
+
+
 def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> dict:
     data = dg.data
     nom_cmp = D.gap_stats(data, dg.nominal.pred, D.sample_masks(data, dg.hold_rec)[1])
@@ -250,14 +259,11 @@ def text_report(rep: dict) -> str:
         ps = ", ".join(f"{k}={v:.3g}" for k, v in e["params"].items())
         L.append(f"  {'*' if e['significant'] else ' '} {e['name']:25s} {e['heldout_gap_before']:.3f} -> "
                  f"{e['heldout_gap_after']:.3f} deg ({100 * e['heldout_reduction']:+5.1f} %, t {e['heldout_t']:.1f})  {ps}")
-        w = e.get("heldout_cold_neighbours_T")
-        if w:
-            L.append(f"    {'':25s} unpowered springs' temperature {w['rms_before_C']:.2f} -> "
-                     f"{w['rms_after_C']:.2f} C ({100 * w['reduction']:+.0f} %, F {w['F']:.2f} "
-                     f"vs {w['F_crit']:.2f}){': they warm as the effect predicts' if w['warms'] else ''}")
+        _warming_line(L, e)
     for p in rep["pairs"]:
         L.append(f"  {'*' if p['significant'] else ' '} pair {p['name']:30s} -> {p['heldout_gap_after']:.3f} deg "
                  f"({100 * p['heldout_reduction_vs_best_single']:+.1f} % vs its best single, t {p['heldout_t_vs_best_single']:.1f})")
+        _warming_line(L, p)
     if rep.get("structure"):
         L.append("Generic structural discrepancies (an effect must beat the best of these too):")
         for c in rep["structure"]:
