@@ -237,6 +237,18 @@ def _natural_key(p: Path):
     return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", p.name)]
 
 
+def wire_meta_problem(key: str, value: Any) -> str | None:
+    """What is wrong with a wire key of ``meta.json`` (None: absent or fine)."""
+    if value is None:
+        return None
+    lo, hi, unit = WIRE_META_RANGES[key]
+    if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)):
+        return f"{key} must be a finite number, got {value!r}"
+    if not lo <= value <= hi:
+        return f"{key} must lie in [{lo:g}, {hi:g}] ({unit}), got {value!r}"
+    return None
+
+
 def read_meta(path: str | Path) -> dict[str, Any]:
     """Read and validate a dataset's ``meta.json`` (all keys optional, unknown keys kept)."""
     path = Path(path)
@@ -255,14 +267,10 @@ def read_meta(path: str | Path) -> dict[str, Any]:
         raise RecordingError(path, f"sample_hz must be > 0, got {data['sample_hz']!r}")
     if "ambient_C" in data and data["ambient_C"] is not None and not -40 <= data["ambient_C"] <= 60:
         raise RecordingError(path, f"ambient_C must lie in [-40, 60] C, got {data['ambient_C']!r}")
-    for key, (lo, hi, unit) in WIRE_META_RANGES.items():
-        v = data.get(key)
-        if v is None:
-            continue
-        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
-            raise RecordingError(path, f"{key} must be a finite number, got {v!r}")
-        if not lo <= v <= hi:
-            raise RecordingError(path, f"{key} must lie in [{lo:g}, {hi:g}] ({unit}), got {v!r}")
+    for key in WIRE_META_RANGES:
+        problem = wire_meta_problem(key, data.get(key))
+        if problem:
+            raise RecordingError(path, problem)
     az = data.get("muscle_azimuth_deg")
     if az is not None:
         if not (isinstance(az, list) and len(az) == 3 and all(

@@ -98,14 +98,23 @@ def test_session_checks_the_on_time_cap_and_needs_an_answer_or_yes(fw, tmp_path)
         _run(fw, tmp_path / "b", [EOFError()])
     res, asked = _run(fw, tmp_path / "c", [], recs=RECS[:1], yes=True)
     assert res.recorded == ["rec_01"] and asked == []
+    # a wire diameter in mm where metres are due is refused before anything runs
+    with pytest.raises(ValueError, match=r"spring_wire_diameter_m must lie in .*0\.5 mm"):
+        _run(fw, tmp_path / "d", [], recs=RECS[:1], yes=True, wire={"spring_wire_diameter_m": 0.5})
+    assert not (tmp_path / "d").exists()
 
 
 def test_protocol_cli_quick_run_and_supply_command(fw, tmp_path, capsys):
     supply = tmp_path / "supply_A"
     rc = cli.main(["protocol", "--port", fw.url, "--record", str(tmp_path / "ds"),
                    "--protocol", "paper", "--recordings", "1", "--duration", "8",
-                   "--supply-cmd", f"echo {{amps}} > {supply}"])
+                   "--supply-cmd", f"echo {{amps}} > {supply}",
+                   "--wire-diameter-mm", "0.5", "--wire-specific-heat", "322"])
     out = capsys.readouterr()
     assert rc == 0, out.err
     assert "protocol complete: 1 recorded now" in out.out
-    assert float(supply.read_text()) == read_dataset(tmp_path / "ds").recordings[0].currents_A.max()
+    ds = read_dataset(tmp_path / "ds")
+    assert float(supply.read_text()) == ds.recordings[0].currents_A.max()
+    # the wire as the diagnosis reads it, in SI units
+    assert ds.meta["spring_wire_diameter_m"] == pytest.approx(0.0005)
+    assert ds.meta["spring_specific_heat_J_kgK"] == 322

@@ -27,13 +27,14 @@ import subprocess
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..task import DEFAULT_CUTOFF_C, MAX_CURRENT_A
 from ..experiments import REST, Recording
-from ..recording import META_FILE, RecordingError, read_recording
+from ..recording import (META_FILE, WIRE_META_RANGES, RecordingError, read_recording,
+                         wire_meta_problem)
 from ..targets import TargetSpec
 from .hardware_env import HardwareNeckEnv
 from .link import RigLink
@@ -118,10 +119,11 @@ def _save_session(record_dir: Path, sess: dict) -> None:
     tmp.replace(record_dir / SESSION_FILE)
 
 
-def _update_meta(record_dir: Path, sess: dict) -> None:
-    """Add the protocol and the rest reading to the ``meta.json`` the env wrote."""
+def _update_meta(record_dir: Path, sess: dict, wire: Mapping[str, float]) -> None:
+    """Add the protocol, the rest reading and the wire to the ``meta.json`` the env wrote."""
     p = record_dir / META_FILE
     meta = json.loads(p.read_text()) if p.is_file() else {}
+    meta.update(wire)
     meta["protocol"] = {k: v for k, v in sess["plan"].items()}
     meta["rest_tilt_deg"] = sess["rest_tilt_deg"]
     meta["rest_criterion"] = {"tilt_deg": REST.tilt_deg, "temperature_K": REST.temperature_K,
@@ -159,9 +161,21 @@ def run_protocol(link: RigLink, record_dir: str | Path, recordings: Sequence[Rec
                  plan_id: dict, *, yes: bool = False, supply_cmd: str | None = None,
                  ask: Callable[[str], str] = input, say: Callable[[str], None] = print,
                  thermistors: int = 0, ambient_C: float | None = None, params=None,
-                 cutoff_C: float = DEFAULT_CUTOFF_C, stream_hz: int = 100) -> SessionResult:
-    """Record ``recordings`` into ``record_dir`` (see the module docs); resumes a session."""
+                 cutoff_C: float = DEFAULT_CUTOFF_C, stream_hz: int = 100,
+                 wire: Mapping[str, float] | None = None) -> SessionResult:
+    """Record ``recordings`` into ``record_dir`` (see the module docs); resumes a session.
+
+    ``wire``: ``spring_wire_diameter_m`` and/or ``spring_specific_heat_J_kgK``, written to
+    ``meta.json`` for the diagnosis (they turn the fitted cooling time constant into h)."""
     t_start = time.monotonic()
+    wire = dict(wire or {})
+    unknown = sorted(set(wire) - set(WIRE_META_RANGES))
+    if unknown:
+        raise ValueError(f"unknown wire keys {unknown}; known: {sorted(WIRE_META_RANGES)}")
+    for key, value in wire.items():
+        problem = wire_meta_problem(key, value)
+        if problem:
+            raise ValueError(problem)
     record_dir = Path(record_dir)
     recs = list(recordings)
     if not recs:
@@ -195,6 +209,8 @@ def run_protocol(link: RigLink, record_dir: str | Path, recordings: Sequence[Rec
     if res.skipped:
         say(f"resuming: {len(res.skipped)} of {len(recs)} recordings already complete")
     if not todo:
+        if wire:  # given on a resume of a finished session: still recorded with it
+            _update_meta(record_dir, sess, wire)
         say("every recording of the protocol is complete")
         res.elapsed_s = time.monotonic() - t_start
         return res
@@ -224,7 +240,7 @@ def run_protocol(link: RigLink, record_dir: str | Path, recordings: Sequence[Rec
             res.rested_s += rr.waited_s
             if rest is None:  # the first rest of the session defines its rest reading
                 sess["rest_tilt_deg"] = [round(v, 3) for v in rr.rest_tilt_deg]
-            _update_meta(record_dir, sess)
+            _update_meta(record_dir, sess, wire)
             refused = 0
             max_theta = 0.0
             for k in range(env.task.episode_steps):
