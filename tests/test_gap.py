@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -27,9 +28,9 @@ pytestmark = pytest.mark.slow
 REPORT_KEYS = {"verdict", "effects", "localization", "unexplained", "ambiguous"}
 
 
-def _diagnose(ds: Path, tmp_path: Path, name: str = "report") -> dict:
+def _diagnose(ds: Path, tmp_path: Path, name: str = "report", extra: Sequence[str] = ()) -> dict:
     out = tmp_path / f"{name}.json"
-    rc = gap_main([str(ds), "--json", str(out), "--quiet", "--no-plots"])
+    rc = gap_main([str(ds), "--json", str(out), "--quiet", "--no-plots", *extra])
     assert rc == 0
     return json.loads(out.read_text())
 
@@ -160,9 +161,16 @@ BLIND = [
                          ids=[f"{e[0] if e else 'none'}-{b}" for e, _, b in BLIND])
 def test_blind_small(tmp_path, effects, seed, baseline):
     ds = tmp_path / "ds"
-    truth = generate(ds, effects, seed=seed, baseline=baseline)
+    # the effect-free rig's wire comes on the command line instead of meta.json
+    wire_on_cli = not effects
+    truth = generate(ds, effects, seed=seed, baseline=baseline, wire_meta=not wire_on_cli)
     assert not (ds / "truth.json").exists() and Path(str(ds) + ".truth.json").exists()
-    rep = _diagnose(ds, tmp_path)
+    wire = ["--wire-diameter-mm", "0.8", "--wire-specific-heat", "837"] if wire_on_cli else []
+    if wire_on_cli:  # metres where mm are due: refused before any fitting, nothing written
+        assert gap_main([str(ds), "--json", str(tmp_path / "bad.json"), "--quiet",
+                         "--wire-diameter-mm", "0.0008", "--wire-specific-heat", "837"]) == 2
+        assert not (tmp_path / "bad.json").exists()
+    rep = _diagnose(ds, tmp_path, extra=wire)
     _check_contract(rep)
     if not effects:
         assert rep["verdict"] == [] and rep["unexplained"] is False
