@@ -29,6 +29,7 @@ hardware env records through it.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import io
 import json
@@ -247,6 +248,38 @@ def wire_meta_problem(key: str, value: Any) -> str | None:
     if not lo <= value <= hi:
         return f"{key} must lie in [{lo:g}, {hi:g}] ({unit}), got {value!r}"
     return None
+
+
+# (option, argparse dest, meta.json key, option unit in SI, unit) of add_wire_arguments
+_WIRE_OPTIONS = (("--wire-diameter-mm", "wire_diameter_mm", "spring_wire_diameter_m", 1e-3, "mm"),
+                 ("--wire-specific-heat", "wire_specific_heat", "spring_specific_heat_J_kgK", 1.0,
+                  "J/(kg K)"))
+
+
+def add_wire_arguments(ap: argparse.ArgumentParser) -> None:
+    """The springs' wire on a command line (the rig's protocol, the diagnosis)."""
+    ap.add_argument("--wire-diameter-mm", type=float, default=None, metavar="MM",
+                    help="the springs' wire diameter, mm (meta.json's spring_wire_diameter_m): "
+                         "with --wire-specific-heat the diagnosis reports h in W/m^2K")
+    ap.add_argument("--wire-specific-heat", type=float, default=None, metavar="J_KGK",
+                    help="the wire's specific heat from its datasheet, J/(kg K) (meta.json's "
+                         "spring_specific_heat_J_kgK)")
+
+
+def wire_from_arguments(args: argparse.Namespace) -> dict[str, float]:
+    """meta.json's wire keys (SI units) from ``add_wire_arguments``' options, those given;
+    ValueError names a bad one with its range in the option's unit."""
+    wire = {}
+    for opt, dest, key, scale, unit in _WIRE_OPTIONS:
+        value = getattr(args, dest)
+        if value is None:
+            continue
+        if wire_meta_problem(key, value * scale):
+            lo, hi, _ = WIRE_META_RANGES[key]
+            raise ValueError(f"{opt} must lie in [{lo / scale:g}, {hi / scale:g}] {unit}, "
+                             f"got {value!r}")
+        wire[key] = value * scale
+    return wire
 
 
 def read_meta(path: str | Path) -> dict[str, Any]:

@@ -13,7 +13,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from ..recording import WIRE_META_RANGES, RecordingError, read_dataset, wire_meta_problem
+from ..recording import (RecordingError, add_wire_arguments, read_dataset,
+                         wire_from_arguments)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -28,26 +29,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "go beside it")
     ap.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     ap.add_argument("--quiet", action="store_true", help="print only the verdict line")
-    ap.add_argument("--wire-diameter-mm", type=float, default=None, metavar="MM",
-                    help="the springs' wire diameter, mm (instead of meta.json's "
-                         "spring_wire_diameter_m): with --wire-specific-heat, h in W/m^2K")
-    ap.add_argument("--wire-specific-heat", type=float, default=None, metavar="J_KGK",
-                    help="the wire's datasheet specific heat, J/(kg K) (instead of meta.json's "
-                         "spring_specific_heat_J_kgK)")
+    add_wire_arguments(ap)
     args = ap.parse_args(argv)
-    wire = {}
-    for opt, key, value, scale, unit in (
-            ("--wire-diameter-mm", "spring_wire_diameter_m", args.wire_diameter_mm, 1e-3, "mm"),
-            ("--wire-specific-heat", "spring_specific_heat_J_kgK", args.wire_specific_heat, 1.0,
-             "J/(kg K)")):
-        if value is None:
-            continue
-        if wire_meta_problem(key, value * scale):
-            lo, hi, _ = WIRE_META_RANGES[key]
-            print(f"neck-gap: bad input: {opt} must lie in [{lo / scale:g}, {hi / scale:g}] {unit}, "
-                  f"got {value!r}", file=sys.stderr)
-            return 2
-        wire[key] = value * scale
+    try:
+        wire = wire_from_arguments(args)
+    except ValueError as exc:
+        print(f"neck-gap: bad input: {exc}", file=sys.stderr)
+        return 2
 
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
     try:

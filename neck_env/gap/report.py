@@ -62,6 +62,15 @@ def _warming_line(L: list[str], entry: dict) -> None:
                  f"vs {w['F_crit']:.2f}){': they warm as the effect predicts' if w['warms'] else ''}")
 
 
+def _unidentified_note(key: str, v: dict, calibration: dict) -> str:
+    """What a baseline parameter's line says when the data do not pin it."""
+    if v.get("identified", True):
+        return ""
+    if key == "h_scale" and calibration.get("cooling_time_constant_s", {}).get("identified"):
+        return "  not identified alone: only as m c/(h A) (below)"
+    return "  not identified by these data (held by its prior)"
+
+
 def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> dict:
     data = dg.data
     nom_cmp = D.gap_stats(data, dg.nominal.pred, D.sample_masks(data, dg.hold_rec)[1])
@@ -214,7 +223,7 @@ def text_report(rep: dict) -> str:
               f"{v['value'] - v['default']:+.3g} C" if k.endswith("shift_C") else "")
         L.append(f"    {k:20s} {heldout_fit.get(k, float('nan')):10.4g} | {v['value']:10.4g} +- {v['std']:<8.2g}"
                  f" {vs:10s}{'  at bound' if v['at_bound'] else ''}"
-                 f"{'' if v.get('identified', True) else '  not identified alone: only as m c/(h A) (below)' if k == 'h_scale' and rep['calibration'].get('cooling_time_constant_s', {}).get('identified') else '  not identified by these data (held by its prior)'}")
+                 f"{_unidentified_note(k, v, rep['calibration'])}")
     not_identified = "NOT identified: record longer cooling tails (the rig protocol)"
     tau = rep["calibration"].get("cooling_time_constant_s")
     if tau:

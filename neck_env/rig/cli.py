@@ -35,6 +35,7 @@ from ..observation import tilt_angles_deg, tilt_from_accel
 from . import protocol as P
 from .errors import RigError, fault_names
 from ..experiments import PROTOCOLS as PROTOCOL_NAMES
+from ..recording import add_wire_arguments, wire_from_arguments
 
 __all__ = ["build_parser", "main"]
 
@@ -174,12 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--supply-cmd", metavar="CMD", default=None,
                    help="shell command that sets a programmable supply, {amps} replaced by the "
                         "current (e.g. the emulator's: 'echo {amps} > FILE'); no prompts")
-    s.add_argument("--wire-diameter-mm", type=_positive(float, "--wire-diameter-mm"), default=None,
-                   metavar="MM", help="the springs' wire diameter, mm (written to meta.json: with "
-                   "--wire-specific-heat the diagnosis reports h in W/m^2K)")
-    s.add_argument("--wire-specific-heat", type=_positive(float, "--wire-specific-heat"),
-                   default=None, metavar="J_KGK",
-                   help="the wire's specific heat from its datasheet, J/(kg K)")
+    add_wire_arguments(s)
     s.add_argument("--cutoff", type=_positive(float, "--cutoff"), default=DEFAULT_CUTOFF_C,
                    metavar="C", help=f"over-temperature cut, deg C (default {DEFAULT_CUTOFF_C:.0f})")
     _add_rig_args(s, cooldown_flag=False)
@@ -315,10 +311,7 @@ def cmd_protocol(args: argparse.Namespace, out=print, ask: Callable[[str], str] 
         kw["duration_s"] = args.duration
     recs = diagnosis_protocol(args.seed, args.protocol, **kw)
     plan_id = {"protocol": args.protocol, "seed": args.seed, **kw}
-    wire = {k: v for k, v in (("spring_wire_diameter_m", None if args.wire_diameter_mm is None
-                                else args.wire_diameter_mm / 1000.0),
-                               ("spring_specific_heat_J_kgK", args.wire_specific_heat))
-            if v is not None}
+    wire = wire_from_arguments(args)
     link = _open_link(args.port)
     try:
         out(f"protocol {args.protocol!r} (seed {args.seed}) on {args.port} into {args.record}: "
