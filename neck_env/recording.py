@@ -250,28 +250,47 @@ def wire_meta_problem(key: str, value: Any) -> str | None:
     return None
 
 
-# (option, argparse dest, meta.json key, option unit in SI, unit) of add_wire_arguments
-_WIRE_OPTIONS = (("--wire-diameter-mm", "wire_diameter_mm", "spring_wire_diameter_m", 1e-3, "mm"),
-                 ("--wire-specific-heat", "wire_specific_heat", "spring_specific_heat_J_kgK", 1.0,
-                  "J/(kg K)"))
+def check_wire(wire: Mapping[str, float]) -> dict[str, float]:
+    """``wire`` (meta.json's wire keys, SI units) as a dict; ValueError names an unknown key or
+    a bad value."""
+    unknown = sorted(set(wire) - set(WIRE_META_RANGES))
+    if unknown:
+        raise ValueError(f"unknown wire keys {unknown}; known: {sorted(WIRE_META_RANGES)}")
+    for key, value in wire.items():
+        problem = wire_meta_problem(key, value)
+        if problem:
+            raise ValueError(problem)
+    return dict(wire)
+
+
+# the springs' wire on a command line: (option, metavar, meta.json key, option unit in SI,
+# unit, help)
+_WIRE_OPTIONS = (
+    ("--wire-diameter-mm", "MM", "spring_wire_diameter_m", 1e-3, "mm",
+     "the springs' wire diameter, mm (meta.json's spring_wire_diameter_m): with "
+     "--wire-specific-heat the diagnosis reports h in W/m^2K"),
+    ("--wire-specific-heat", "J_KGK", "spring_specific_heat_J_kgK", 1.0, "J/(kg K)",
+     "the wire's specific heat from its datasheet, J/(kg K) (meta.json's "
+     "spring_specific_heat_J_kgK)"),
+)
+
+
+def _dest(option: str) -> str:
+    return option.lstrip("-").replace("-", "_")
 
 
 def add_wire_arguments(ap: argparse.ArgumentParser) -> None:
     """The springs' wire on a command line (the rig's protocol, the diagnosis)."""
-    ap.add_argument("--wire-diameter-mm", type=float, default=None, metavar="MM",
-                    help="the springs' wire diameter, mm (meta.json's spring_wire_diameter_m): "
-                         "with --wire-specific-heat the diagnosis reports h in W/m^2K")
-    ap.add_argument("--wire-specific-heat", type=float, default=None, metavar="J_KGK",
-                    help="the wire's specific heat from its datasheet, J/(kg K) (meta.json's "
-                         "spring_specific_heat_J_kgK)")
+    for opt, metavar, *_, help_ in _WIRE_OPTIONS:
+        ap.add_argument(opt, type=float, default=None, metavar=metavar, help=help_)
 
 
 def wire_from_arguments(args: argparse.Namespace) -> dict[str, float]:
     """meta.json's wire keys (SI units) from ``add_wire_arguments``' options, those given;
     ValueError names a bad one with its range in the option's unit."""
     wire = {}
-    for opt, dest, key, scale, unit in _WIRE_OPTIONS:
-        value = getattr(args, dest)
+    for opt, _metavar, key, scale, unit, _help in _WIRE_OPTIONS:
+        value = getattr(args, _dest(opt))
         if value is None:
             continue
         if wire_meta_problem(key, value * scale):

@@ -33,8 +33,7 @@ import numpy as np
 
 from ..task import DEFAULT_CUTOFF_C, MAX_CURRENT_A
 from ..experiments import REST, Recording
-from ..recording import (META_FILE, WIRE_META_RANGES, RecordingError, read_recording,
-                         wire_meta_problem)
+from ..recording import META_FILE, RecordingError, check_wire, read_recording
 from ..targets import TargetSpec
 from .hardware_env import HardwareNeckEnv
 from .link import RigLink
@@ -168,14 +167,7 @@ def run_protocol(link: RigLink, record_dir: str | Path, recordings: Sequence[Rec
     ``wire``: ``spring_wire_diameter_m`` and/or ``spring_specific_heat_J_kgK``, written to
     ``meta.json`` for the diagnosis (they turn the fitted cooling time constant into h)."""
     t_start = time.monotonic()
-    wire = dict(wire or {})
-    unknown = sorted(set(wire) - set(WIRE_META_RANGES))
-    if unknown:
-        raise ValueError(f"unknown wire keys {unknown}; known: {sorted(WIRE_META_RANGES)}")
-    for key, value in wire.items():
-        problem = wire_meta_problem(key, value)
-        if problem:
-            raise ValueError(problem)
+    wire = check_wire(wire or {})
     record_dir = Path(record_dir)
     recs = list(recordings)
     if not recs:
