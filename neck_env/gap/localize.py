@@ -6,6 +6,11 @@ Phases, per sample, from the commanded currents only (what the host knows):
 * ``cooling``: all off, within ``COOLING_S`` after the last switch-off in this recording,
 * ``rest``: all off, before the first switch-on or more than ``COOLING_S`` after the last one.
 
+Co-activation, per tilt sample: how many muscles are on or were switched off within
+``COOLING_S`` (still warm): one, or several. A model whose single muscles fit while the
+samples with several warm muscles do not is wrong in how the muscles' pulls and histories
+combine (antagonists loading a warm spring, pennate geometry), not in any one muscle.
+
 For theta and phi the muscle is the active one (the highest commanded current while heating,
 the last one switched off while cooling; none at rest). Temperature channel k is labelled by
 its own muscle and by its own phase (muscle k on / recently off / neither).
@@ -67,6 +72,25 @@ def channel_phases(t: np.ndarray, cmd_k: np.ndarray, cooling_s: float = COOLING_
     return phase
 
 
+ACTIVATION = ("one", "several")  # muscles on or still warm at a tilt sample (none: rest)
+# Several warm muscles only stand out by this much more tilt error (RMS) as well: the project's
+# own rig, effect-free, leaves 0.04 deg with one muscle warm and 0.08 deg with several (a
+# noise-level difference), an independently written one 0.2-0.8 deg against 0.3-1.6 deg.
+ACTIVATION_MIN_DEG = 0.1
+
+
+def warm_muscles(t: np.ndarray, cmd: np.ndarray, cooling_s: float = COOLING_S) -> np.ndarray:
+    """Per sample, how many muscles are on or were switched off within ``cooling_s``."""
+    on = cmd > 0
+    count = np.zeros(t.size, int)
+    for k in range(cmd.shape[1]):
+        # time of the latest on-sample up to each sample (-inf before the first)
+        last = np.where(on[:, k], t, -np.inf)
+        last = np.maximum.accumulate(last)
+        count += (t - last <= cooling_s).astype(int)
+    return count
+
+
 def decompose(recs: Sequence[dict]) -> dict:
     """Residual energy shares.
 
@@ -77,10 +101,16 @@ def decompose(recs: Sequence[dict]) -> dict:
     cur_acc: dict[tuple, float] = {}
     n_total = 0
     time_count: dict[tuple, int] = {}
+    act_acc = {a: [0.0, 0] for a in ACTIVATION}  # tilt energy (theta + phi), samples
     for r in recs:
         t, cmd = r["t"], r["cmd"]
         ph, mu, lvl = phases(t, cmd)
         n_total += t.size
+        warm = warm_muscles(t, cmd)
+        tilt_e2 = r["e_theta"] ** 2 + r["e_phi"] ** 2
+        for a, sel in (("one", warm == 1), ("several", warm >= 2)):
+            act_acc[a][0] += float(tilt_e2[sel].sum())
+            act_acc[a][1] += int(sel.sum())
         signals = [("theta", r["e_theta"] ** 2, ph, mu), ("phi", r["e_phi"] ** 2, ph, mu)]
         if r.get("e_T") is not None:
             for k in range(3):
@@ -123,9 +153,13 @@ def decompose(recs: Sequence[dict]) -> dict:
                   for (s, b), e in sorted(cur_acc.items(), key=lambda kv: (kv[0][0], kv[0][1]))]
     phase_time = {p: sum(c for (pp, _), c in time_count.items() if pp == p) / max(n_total, 1)
                   for p in PHASES}
+    # RMS tilt error (theta and phi pooled, deg) where one / several muscles are warm
+    by_activation = {a: {"rms": math.sqrt(e / (2 * c)) if c else None,
+                         "time_fraction": c / max(n_total, 1)}
+                     for a, (e, c) in act_acc.items()}
     return {"items": items, "by_current": by_current, "by_signal": by_signal,
             "by_phase": by_phase, "phase_time_fraction": phase_time,
-            "total_energy": total, "n_samples": n_total}
+            "by_activation": by_activation, "total_energy": total, "n_samples": n_total}
 
 
 def _spearman(a: np.ndarray, b: np.ndarray) -> float:
@@ -173,9 +207,19 @@ def pattern(dec: dict, recs: Sequence[dict]) -> dict:
         if tf > 0.02:
             mus[m] = e / tot_tilt / tf
     muscle = _densest(mus, "all muscles alike")
+    # tilt residual density (mean square) with one and with several muscles warm
+    act = dec.get("by_activation", {})
+    act_dens = {a: v["rms"] ** 2 for a, v in act.items()
+                if v["rms"] is not None and v["time_fraction"] > 0.02}
+    activation = (_densest(act_dens, "one and several alike") if len(act_dens) == 2 else None)
+    if activation in ACTIVATION and (abs(math.sqrt(act_dens["several"]) - math.sqrt(act_dens["one"]))
+                                     < ACTIVATION_MIN_DEG):
+        activation = "one and several alike"
     per = np.array([math.sqrt(float(np.mean(r["e_theta"] ** 2 + r["e_phi"] ** 2) / 2)) for r in recs])
     trend = _spearman(np.arange(per.size, dtype=float), per)
     return {"dominant_signal": sig, "tilt_share": tilt, "temperature_share": by_sig.get("temperature", 0.0),
             "phase_density": dens, "concentrated_in_phase": concentrated,
             "muscle_density": {str(k): v for k, v in mus.items()}, "concentrated_in_muscle": muscle,
+            "activation_rms_deg": {a: v["rms"] for a, v in act.items()},
+            "concentrated_in_activation": activation,
             "per_recording_rms": per.tolist(), "trend_across_recordings": trend}

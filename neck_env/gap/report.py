@@ -53,6 +53,21 @@ def _warming(s: "D.Comparison") -> dict:
         "n_eff": _r(w.n_eff, 1), "samples": w.samples, "warms": bool(D.warms(s))}}
 
 
+def _activation_line(L: list[str], pattern: dict, prefix: str, remaining: bool = False) -> None:
+    """The tilt residual with one muscle warm against several (``localize.warm_muscles``);
+    ``remaining``: of the verdict model, which says what that concentration means."""
+    rms = pattern.get("activation_rms_deg") or {}
+    if rms.get("one") is None or rms.get("several") is None:
+        return
+    L.append(f"{prefix}co-activation: {pattern['concentrated_in_activation']} (tilt RMS with one "
+             f"muscle warm {rms['one']:.2f} deg, several {rms['several']:.2f} deg)")
+    if remaining and pattern["concentrated_in_activation"] == "several":
+        L.append("      the muscles fit one at a time but not together, and no effect of the verdict "
+                 "takes it:")
+        L.append("      how their pulls and histories combine (antagonists stretching a warm spring,")
+        L.append("      the pennate geometry) likely differs from the model's")
+
+
 def _warming_line(L: list[str], entry: dict) -> None:
     """The cold neighbours' temperatures under an effect's or a pair's line, when compared."""
     w = entry.get("heldout_cold_neighbours_T")
@@ -258,6 +273,7 @@ def text_report(rep: dict) -> str:
     pt = rep["localization_pattern"]
     L.append(f"    pattern: {pt['dominant_signal']}; phase: {pt['concentrated_in_phase']}; muscle: "
              f"{pt['concentrated_in_muscle']}; trend across recordings {pt['trend_across_recordings']:+.2f}")
+    _activation_line(L, pt, "    ")
     for it in rep["localization"][:6]:
         m = f"muscle {it['muscle']}" if it["muscle"] else "no muscle"
         L.append(f"    {100 * it['share']:5.1f} %  {it['signal']:11s} {it['phase']:8s} {m:10s} "
@@ -298,12 +314,16 @@ def text_report(rep: dict) -> str:
         L.append(f"    remaining residual: {100 * pr['tilt_share']:.0f} % in the tilt (theta/phi); "
                  f"phase: {pr['concentrated_in_phase']}; trend across recordings "
                  f"{pr['trend_across_recordings']:+.2f}")
+        _activation_line(L, pr, "    remaining ", remaining=True)
         for it in rep["localization_remaining"][:3]:
             m = f"muscle {it['muscle']}" if it["muscle"] else "no muscle"
             L.append(f"    remaining: {100 * it['share']:5.1f} % {it['signal']} {it['phase']} {m}")
     else:
         L.append(f"Remaining systematic held-out residual {c['systematic_heldout_residual_deg']:.2f} deg: "
                  "explained")
+        pr = rep["localization_remaining_pattern"]
+        if pr.get("concentrated_in_activation") == "several":
+            _activation_line(L, pr, "    remaining ", remaining=True)
     if rep.get("outputs"):
         L.append("")
         L.append("Wrote: " + ", ".join(rep["outputs"].values()))
