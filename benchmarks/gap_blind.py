@@ -211,6 +211,14 @@ def summarize(results: list[dict]) -> str:
         L.append(f"held-out gap reduction with the true effect added: median {100 * statistics.median(red):.0f} % "
                  f"(target >= 60 %), min {100 * min(red):.0f} %; with the verdict model (singles + pairs): "
                  f"median {100 * statistics.median(corr):.0f} %")
+    # where the verdict model's residual still sits where several muscles are warm, the console
+    # reads it as structure (localize.warm_muscles): how often, with and without an effect
+    def coact(rs):
+        return sum((r["report"].get("localization_remaining_pattern") or {})
+                   .get("concentrated_in_activation") == "several" for r in rs)
+    L.append(f"remaining residual concentrated where several muscles are warm (read as structure): "
+             f"effect-free {coact(free)}/{len(free)}, single {coact(singles)}/{len(singles)}, "
+             f"pairs {coact(pairs)}/{len(pairs)}, gyro drift {coact(gyro)}/{len(gyro)}")
     gy_un = [r for r in gyro if r["report"].get("unexplained")]
     loc = [gyro_localized(r["report"]) for r in gyro]
     L.append(f"gyro_bias_drift: unexplained {len(gy_un)}/{len(gyro)}; remaining residual in the tilt "

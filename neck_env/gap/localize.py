@@ -75,7 +75,7 @@ def channel_phases(t: np.ndarray, cmd_k: np.ndarray, cooling_s: float = COOLING_
 ACTIVATION = ("one", "several")  # muscles on or still warm at a tilt sample (none: rest)
 # Several warm muscles only stand out by this much more tilt error (RMS) as well: the project's
 # own rig, effect-free, leaves 0.04 deg with one muscle warm and 0.08 deg with several (a
-# noise-level difference), an independently written one 0.2-0.8 deg against 0.3-1.6 deg.
+# noise-level difference), an independently written one 0.20-0.87 deg against 0.51-1.41 deg.
 ACTIVATION_MIN_DEG = 0.1
 
 
