@@ -71,7 +71,7 @@ def test_the_console_reads_a_co_activation_misfit_as_structure_only_when_it_rema
                      "several 1.02 deg)"]
     lines = []
     _activation_line(lines, several, "    remaining ", remaining=True)
-    assert len(lines) == 4 and "fit one at a time but not together" in lines[1]
+    assert len(lines) == 5 and "fit one at a time but not together" in lines[1]
     lines = []
     _activation_line(lines, dict(several, concentrated_in_activation="one and several alike"),
                      "    remaining ", remaining=True)

@@ -65,7 +65,8 @@ def _activation_line(L: list[str], pattern: dict, prefix: str, remaining: bool =
         L.append("      the muscles fit one at a time but not together, and no effect of the verdict "
                  "takes it:")
         L.append("      how their pulls and histories combine (antagonists stretching a warm spring,")
-        L.append("      the pennate geometry) likely differs from the model's")
+        L.append("      the pennate geometry) likely differs from the model's, unless an effect of their")
+        L.append("      interplay (friction under changing moments, neighbour heating) is missed or mis-sized")
 
 
 def _warming_line(L: list[str], entry: dict) -> None:
