@@ -276,13 +276,16 @@ _WIRE_OPTIONS = (
 
 
 def _dest(option: str) -> str:
+    """The argparse attribute of a wire option: given explicitly by add_wire_arguments and
+    read by wire_from_arguments, so both use this one rule."""
     return option.lstrip("-").replace("-", "_")
 
 
 def add_wire_arguments(ap: argparse.ArgumentParser) -> None:
     """The springs' wire on a command line (the rig's protocol, the diagnosis)."""
     for opt, metavar, *_, help_ in _WIRE_OPTIONS:
-        ap.add_argument(opt, type=float, default=None, metavar=metavar, help=help_)
+        ap.add_argument(opt, dest=_dest(opt), type=float, default=None, metavar=metavar,
+                        help=help_)
 
 
 def wire_from_arguments(args: argparse.Namespace) -> dict[str, float]:

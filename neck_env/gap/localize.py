@@ -61,15 +61,8 @@ def phases(t: np.ndarray, cmd: np.ndarray, cooling_s: float = COOLING_S):
 def channel_phases(t: np.ndarray, cmd_k: np.ndarray, cooling_s: float = COOLING_S) -> np.ndarray:
     """Phase of one muscle's own channel (its temperature)."""
     on = cmd_k > 0
-    phase = np.full(t.size, 2, int)
-    last = -math.inf
-    for j in range(t.size):
-        if on[j]:
-            phase[j] = 0
-            last = t[j]
-        elif t[j] - last <= cooling_s:
-            phase[j] = 1
-    return phase
+    last_on = np.maximum.accumulate(np.where(on, t, -np.inf))  # -inf before the first
+    return np.where(on, 0, np.where(t - last_on <= cooling_s, 1, 2))
 
 
 ACTIVATION = ("one", "several")  # muscles on or still warm at a tilt sample (none: rest)
@@ -81,14 +74,11 @@ ACTIVATION_MIN_DEG = 0.1
 
 def warm_muscles(t: np.ndarray, cmd: np.ndarray, cooling_s: float = COOLING_S) -> np.ndarray:
     """Per sample, how many muscles are on or were switched off within ``cooling_s``."""
-    on = cmd > 0
-    count = np.zeros(t.size, int)
-    for k in range(cmd.shape[1]):
-        # time of the latest on-sample up to each sample (-inf before the first)
-        last = np.where(on[:, k], t, -np.inf)
-        last = np.maximum.accumulate(last)
-        count += (t - last <= cooling_s).astype(int)
-    return count
+    return _warm_count([channel_phases(t, cmd[:, k], cooling_s) for k in range(cmd.shape[1])])
+
+
+def _warm_count(channel_phase: Sequence[np.ndarray]) -> np.ndarray:
+    return sum((p < 2).astype(int) for p in channel_phase)
 
 
 def decompose(recs: Sequence[dict]) -> dict:
@@ -106,17 +96,17 @@ def decompose(recs: Sequence[dict]) -> dict:
         t, cmd = r["t"], r["cmd"]
         ph, mu, lvl = phases(t, cmd)
         n_total += t.size
-        warm = warm_muscles(t, cmd)
+        ch = [channel_phases(t, cmd[:, k]) for k in range(3)]  # temperatures and co-activation
+        warm = _warm_count(ch)
         tilt_e2 = r["e_theta"] ** 2 + r["e_phi"] ** 2
-        for a, sel in (("one", warm == 1), ("several", warm >= 2)):
+        for a, sel in zip(ACTIVATION, (warm == 1, warm >= 2)):
             act_acc[a][0] += float(tilt_e2[sel].sum())
             act_acc[a][1] += int(sel.sum())
         signals = [("theta", r["e_theta"] ** 2, ph, mu), ("phi", r["e_phi"] ** 2, ph, mu)]
         if r.get("e_T") is not None:
             for k in range(3):
                 e = (r["e_T"][:, k] / SIGMA_T) ** 2 / 3.0
-                signals.append(("temperature", e, channel_phases(t, cmd[:, k]),
-                                np.full(t.size, k + 1)))
+                signals.append(("temperature", e, ch[k], np.full(t.size, k + 1)))
         for sig, e2, p, m in signals:
             for pi in range(3):
                 for mk in range(4):
@@ -208,12 +198,12 @@ def pattern(dec: dict, recs: Sequence[dict]) -> dict:
             mus[m] = e / tot_tilt / tf
     muscle = _densest(mus, "all muscles alike")
     # tilt residual density (mean square) with one and with several muscles warm
-    act = dec.get("by_activation", {})
-    act_dens = {a: v["rms"] ** 2 for a, v in act.items()
-                if v["rms"] is not None and v["time_fraction"] > 0.02}
-    activation = (_densest(act_dens, "one and several alike") if len(act_dens) == 2 else None)
-    if activation in ACTIVATION and (abs(math.sqrt(act_dens["several"]) - math.sqrt(act_dens["one"]))
-                                     < ACTIVATION_MIN_DEG):
+    act = dec["by_activation"]
+    rms = {a: v["rms"] for a, v in act.items()
+           if v["rms"] is not None and v["time_fraction"] > 0.02}
+    activation = (_densest({a: x * x for a, x in rms.items()}, "one and several alike")
+                  if len(rms) == 2 else None)
+    if activation in ACTIVATION and abs(rms["several"] - rms["one"]) < ACTIVATION_MIN_DEG:
         activation = "one and several alike"
     per = np.array([math.sqrt(float(np.mean(r["e_theta"] ** 2 + r["e_phi"] ** 2) / 2)) for r in recs])
     trend = _spearman(np.arange(per.size, dtype=float), per)

@@ -307,11 +307,11 @@ def text_report(rep: dict) -> str:
             L.append(f"    {name}: " + ", ".join(f"{k} = {x:.4g}" for k, x in ps.items()))
         L.append(f"    held-out gap {n['heldout_gap']:.3f} -> {c['heldout_gap']:.3f} deg "
                  f"({100 * c['heldout_reduction']:.0f} % smaller)")
+    pr = rep["localization_remaining_pattern"]
     if rep["unexplained"]:
         L.append("UNEXPLAINED: a large residual remains that no catalogued effect explains:")
         for r in rep["unexplained_reasons"]:
             L.append(f"    - {r}")
-        pr = rep["localization_remaining_pattern"]
         L.append(f"    remaining residual: {100 * pr['tilt_share']:.0f} % in the tilt (theta/phi); "
                  f"phase: {pr['concentrated_in_phase']}; trend across recordings "
                  f"{pr['trend_across_recordings']:+.2f}")
@@ -322,7 +322,6 @@ def text_report(rep: dict) -> str:
     else:
         L.append(f"Remaining systematic held-out residual {c['systematic_heldout_residual_deg']:.2f} deg: "
                  "explained")
-        pr = rep["localization_remaining_pattern"]
         if pr.get("concentrated_in_activation") == "several":
             _activation_line(L, pr, "    remaining ", remaining=True)
     if rep.get("outputs"):
