@@ -11,7 +11,7 @@ import pytest
 from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, UNEXPLAINED_REST_DEG,
                                    WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
                                    _convection, _cooling_time_constant, _draft_rebalanced, choose_holdout,
-                                   responsible, rest_moves, significant, warms)
+                                   fast_power, responsible, rest_moves, significant, warms)
 from neck_env.gap.model import Model, nominal_specs
 from neck_env.params import default_params
 from neck_env.physics.plant import cooling_time_constant_s
@@ -63,6 +63,45 @@ def test_paired_evidence_stands_without_the_f_test():
 def test_a_small_improvement_is_never_an_effect(change):
     # however consistent: under 20 % or under 0.05 deg of the held-out gap
     assert not significant(_cmp(**change))
+
+
+def test_the_practical_margin_is_taken_above_the_sensor_noise():
+    # 0.082 -> 0.040 deg held out (a second effect of a pair on a quiet rig): 0.042 deg of the
+    # raw gap, but the noise (0.031 deg) is in both and no model removes it; above it the
+    # second effect removes sqrt(0.082^2 - 0.031^2) - sqrt(0.040^2 - 0.031^2) = 0.051 deg
+    quiet = dict(gap_before_deg=0.082, gap_after_deg=0.040, reduction=0.51,
+                 abs_reduction_deg=0.042, F=4.2, F_crit=1.4, t=4.3)
+    assert not significant(_cmp(**quiet))
+    c = _cmp(**quiet, noise_deg=0.031)
+    assert c.systematic_abs_reduction_deg == pytest.approx(0.0508, abs=5e-4)
+    assert significant(c)
+    # the margin above a noise below both gaps is never smaller than the raw one
+    for noise in (0.0, 0.02, 0.039, 0.040):
+        c = _cmp(**dict(quiet, abs_reduction_deg=0.082 - 0.040), noise_deg=noise)
+        assert c.systematic_abs_reduction_deg >= c.abs_reduction_deg - 1e-12
+
+
+def test_fast_power_is_the_noise_not_the_slow_misfit():
+    # 10 Hz held-out residuals: a slow 0.5 deg misfit (30 s period) plus white sensor noise
+    rng = np.random.default_rng(3)
+    n, sigma = 300, 0.05
+    t = np.arange(n) / 10.0
+    slow = 0.5 * np.sin(2 * np.pi * t / 30.0)
+    recs = 2
+    theta = np.concatenate([5.0 + slow + rng.normal(0, sigma, n) for _ in range(recs)])
+    data = SimpleNamespace(meas_theta=theta, meas_phi=np.zeros(recs * n),
+                           fit_rec=np.repeat(np.arange(recs), n),
+                           fit_idx=np.tile(np.arange(n), recs), t=[t] * recs)
+    pred = SimpleNamespace(tilt_x=np.full(recs * n, 5.0), tilt_y=np.zeros(recs * n))
+    mask = np.ones(recs * n, bool)
+    # combined_err2 halves the squared tilt-vector error: white noise on one axis gives sigma^2/2
+    p = fast_power(data, pred, mask)
+    assert p == pytest.approx(sigma ** 2 / 2, rel=0.2)
+    # the slow misfit (0.125 deg^2 of combined error) is left out; only held-out samples count
+    assert p < 0.02 * float(np.mean(0.5 * slow ** 2)) + sigma ** 2
+    half = mask.copy()
+    half[n:] = False
+    assert fast_power(data, pred, half) == pytest.approx(sigma ** 2 / 2, rel=0.25)
 
 
 def test_responsible_also_beats_the_best_structural_discrepancy():

@@ -272,7 +272,8 @@ class Comparison:
     def systematic_abs_reduction_deg(self) -> float:
         """The gap removed above the noise: sqrt(gap^2 - noise^2) before minus after. No
         model removes sensor noise, so a practical margin in degrees is a margin on this
-        part; it is never less than ``abs_reduction_deg``."""
+        part; with the noise below both gaps (``compare`` caps it) it is never less than
+        ``abs_reduction_deg``."""
         n2 = self.noise_deg ** 2
         return (math.sqrt(max(self.gap_before_deg ** 2 - n2, 0.0))
                 - math.sqrt(max(self.gap_after_deg ** 2 - n2, 0.0)))
@@ -311,7 +312,9 @@ def compare(data: Prepared, before: Prediction, after: Prediction, mask: np.ndar
     n_eff = min(heldout_neff(data, before, mask), heldout_neff(data, after, mask))
     F = (g0 / g1) ** 2 if g1 > 0 else math.inf
     F_crit = f_crit(n_eff)
-    noise = math.sqrt(min(fast_power(data, before, mask), fast_power(data, after, mask)))
+    # no larger than either gap: the noise is part of both
+    noise = min(math.sqrt(min(fast_power(data, before, mask), fast_power(data, after, mask))),
+                g0, g1)
     # per held-out recording: an improvement concentrated in a few 5 s blocks (a delay shows
     # only at switching edges) is still consistent when every recording shares it
     rec = data.fit_rec[mask]
