@@ -416,7 +416,18 @@ def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(
     # the same folder with another suite's options: refused, nothing overwritten
     with pytest.raises(SystemExit, match="resume with the same options"):
         gb.main(tiny + ["--resume", "--baseline", "wide"])
+    with pytest.raises(SystemExit, match="resume with the same options"):  # a fresh suite's seeds
+        gb.main(tiny + ["--resume", "--first-seed", "5000"])
     assert (tmp_path / "report_1000.json").stat().st_mtime_ns == report_1000
+
+
+def test_gap_blind_first_seed_draws_a_fresh_suite_of_the_same_mix(gap_blind_script):
+    gb = gap_blind_script
+    for quick in (False, True):
+        base, fresh = gb.cases(quick), gb.cases(quick, first_seed=5000)
+        assert [e for e, _ in fresh] == [e for e, _ in base]
+        assert [s for _, s in base] == list(range(1000, 1000 + len(base)))
+        assert [s for _, s in fresh] == list(range(5000, 5000 + len(base)))
 
 
 def test_only_heat_from_a_neighbour_warms_a_spring_not_yet_powered(tmp_path):
