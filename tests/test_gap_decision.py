@@ -209,6 +209,41 @@ def test_a_steady_rest_drift_moves_the_rest_even_when_its_spread_is_small():
     assert not rest_moves(float("nan"), float("nan"), float("nan"))
 
 
+def test_the_rest_reading_is_read_before_the_first_command_not_in_a_slow_cooling_tail():
+    # four recordings: 2 s upright before a pulse, then a neck that cools so slowly that it is
+    # still bent 20 s after the switch-off (localize's "rest" phase), where the model misses by
+    # a different amount in each recording -- misfit of a bent neck, not the reading at rest
+    from neck_env.gap.diagnose import rest_drift_stats, rest_offsets
+
+    t = np.arange(0, 30.0, 0.02)
+    cmd = np.zeros((t.size, 3))
+    cmd[(t >= 2.0) & (t < 7.0), 0] = 6.0
+    bent = np.where(t < 2.0, 0.0, 40.0)
+    late_miss = [0.0, 1.5, -1.0, 2.0]
+
+    def dataset(start_offsets):
+        data = SimpleNamespace(n_rec=4, t=[t] * 4, cmd=[cmd] * 4, phi=[np.full(t.size, 180.0)] * 4,
+                               theta=[bent + np.where(t < 2.0, o, m)
+                                      for o, m in zip(start_offsets, late_miss)])
+        pred = [{"theta": bent, "phi": np.full(t.size, 180.0)} for _ in range(4)]
+        return data, pred
+
+    data, pred = dataset([0.0] * 4)
+    ro = rest_offsets(data, pred)
+    assert np.allclose(ro, 0.0)  # the late misfit (up to 2 deg) is not read as a rest reading
+    assert not rest_moves(*rest_drift_stats(data, pred)[1:])
+    # a reading at rest that does move (a drifting gyro: 0.4 deg more at every start) is seen
+    data, pred = dataset([0.0, 0.4, 0.8, 1.2])
+    ro = rest_offsets(data, pred)
+    assert np.allclose(ro[:, 0], [0.0, -0.4, -0.8, -1.2]) and np.allclose(ro[:, 1], 0.0, atol=1e-9)
+    assert rest_moves(*rest_drift_stats(data, pred)[1:])
+    # a recording that starts with a command has no reading at rest
+    early = cmd.copy()
+    early[:3, 1] = 5.0
+    data.cmd = [early] + [cmd] * 3
+    assert np.isnan(rest_offsets(data, pred)[0]).all() and not np.isnan(rest_offsets(data, pred)[1:]).any()
+
+
 def test_cooling_time_constant_is_the_ratio_of_heat_capacity_to_h_with_correlated_errors():
     specs = nominal_specs(25.0, 1.0)
     keys = [sp.key for sp in specs]

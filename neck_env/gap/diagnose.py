@@ -857,11 +857,16 @@ def full_residuals(data: Prepared, full_pred: list[dict]) -> list[dict]:
 
 
 def rest_offsets(data: Prepared, full_pred: list[dict]) -> np.ndarray:
-    """Mean residual tilt vector at rest per recording (NaN where a recording has no rest)."""
+    """Mean residual tilt vector at rest per recording: over its samples before the first
+    command, where every recording starts at rest (``experiments.REST``; NaN where a recording
+    has fewer than 5). Not ``localize``'s command-based rest phase (all off for 20 s): a neck
+    that cools slowly is still bent then, and the model's misfit there is not the reading at
+    rest (independent rig, effect-free seed 5005: 47 deg at 27-30 s, read as a rest reading
+    that changed by 0.84 deg RMS between recordings)."""
     out = np.full((data.n_rec, 2), np.nan)
     for r in range(data.n_rec):
-        ph, _, _ = localize.phases(data.t[r] - data.t[r][0], data.cmd[r])
-        sel = ph == 2
+        on = (np.asarray(data.cmd[r]) > 0).any(axis=1)
+        sel = np.arange(on.size) < (int(np.argmax(on)) if on.any() else on.size)
         if sel.sum() < 5:
             continue
         p = full_pred[r]
