@@ -334,21 +334,8 @@ def fast_power(data: Prepared, pred: Prediction, mask: np.ndarray,
     average over ``window_s``, on the masked samples: the sensor's noise and whatever the
     model does not follow that fast."""
     mx, my = tilt_vec(data.meas_theta, data.meas_phi)
-    ex, ey = mx - pred.tilt_x, my - pred.tilt_y
-    tot, n = 0.0, 0
-    for r in np.unique(data.fit_rec[mask]):
-        sel = mask & (data.fit_rec == r)
-        if sel.sum() < 3:
-            continue
-        t = data.t[r][data.fit_idx[sel]]
-        w = max(1, int(round(window_s / float(np.median(np.diff(t))))))
-        k = np.ones(w)
-        cnt = np.convolve(np.ones(t.size), k, mode="same")  # the window shortens at the ends
-        fx_ = ex[sel] - np.convolve(ex[sel], k, mode="same") / cnt
-        fy_ = ey[sel] - np.convolve(ey[sel], k, mode="same") / cnt
-        tot += float(0.5 * (fx_ ** 2 + fy_ ** 2).sum())
-        n += int(sel.sum())
-    return tot / max(n, 1)
+    return _masked_power(data, mask, mx - pred.tilt_x, my - pred.tilt_y,
+                         lambda e, t: e - smooth_rms(e, t, window_s, shrink_ends=True))
 
 
 def responsible(c: Comparison) -> bool:
@@ -865,7 +852,7 @@ def rest_offsets(data: Prepared, full_pred: list[dict]) -> np.ndarray:
     that changed by 0.84 deg RMS between recordings)."""
     out = np.full((data.n_rec, 2), np.nan)
     for r in range(data.n_rec):
-        on = (np.asarray(data.cmd[r]) > 0).any(axis=1)
+        on = (data.cmd[r] > 0).any(axis=1)
         sel = np.arange(on.size) < (int(np.argmax(on)) if on.any() else on.size)
         if sel.sum() < 5:
             continue
@@ -910,14 +897,16 @@ def rest_moves(spread: float, drift: float, r2: float) -> bool:
     return spread > UNEXPLAINED_REST_DEG or (r2 > DRIFT_R2 and drift > UNEXPLAINED_REST_DEG)
 
 
-def smooth_rms(e: np.ndarray, t: np.ndarray, window_s: float = 3.0) -> np.ndarray:
-    """Moving average (systematic part) of a residual series."""
+def smooth_rms(e: np.ndarray, t: np.ndarray, window_s: float = 3.0,
+               shrink_ends: bool = False) -> np.ndarray:
+    """Moving average (systematic part) of a residual series; ``shrink_ends``: averaged over
+    the samples the window holds at the ends, instead of padded with zeros."""
     if e.size < 3:
         return e
     dt = float(np.median(np.diff(t)))
-    w = max(1, int(round(window_s / dt)))
-    k = np.ones(w) / w
-    return np.convolve(e, k, mode="same")
+    k = np.ones(max(1, int(round(window_s / dt))))
+    den = np.convolve(np.ones(e.size), k, mode="same") if shrink_ends else k.size
+    return np.convolve(e, k, mode="same") / den
 
 
 @dataclass
@@ -1095,7 +1084,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         # the best one does not significantly beat (when two effects of a pair each explain
         # about as much as a third, wrong one, the step from that one alone never tries the
         # true pair)
-        verdict_c = single = sig[0]
+        single = sig[0]
         first = single.effects[0]
         tied = [c for c in sig[1:]
                 if not significant(compare(data, c.pred, single.pred, run.hold_mask))][:PAIR_TIED]
@@ -1278,14 +1267,21 @@ def _unexplained_tol(data: Prepared, mask: np.ndarray) -> float:
 def _systematic_rms(data: Prepared, pred: Prediction, mask: np.ndarray, window_s: float = 3.0) -> float:
     """RMS of the smoothed (systematic) combined residual on the masked samples."""
     e_th, e_ph, _ = residual_parts(data.meas_theta, data.meas_phi, None, pred.theta, pred.phi, None)
+    return math.sqrt(_masked_power(data, mask, e_th, e_ph, lambda e, t: smooth_rms(e, t, window_s)))
+
+
+def _masked_power(data: Prepared, mask: np.ndarray, ex: np.ndarray, ey: np.ndarray,
+                  part: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> float:
+    """Mean of (a^2 + b^2) / 2 over the masked samples, a and b = ``part`` of each error
+    component taken per recording (on its own sample times; recordings with fewer than three
+    masked samples left out)."""
     tot, n = 0.0, 0
-    for r in range(data.n_rec):
+    for r in np.unique(data.fit_rec[mask]):
         sel = (data.fit_rec == r) & mask
         if sel.sum() < 3:
             continue
-        t = np.array([data.t[r][j] for j in data.fit_idx[sel]])
-        a = smooth_rms(e_th[sel], t, window_s)
-        b = smooth_rms(e_ph[sel], t, window_s)
+        t = data.t[r][data.fit_idx[sel]]
+        a, b = part(ex[sel], t), part(ey[sel], t)
         tot += float(0.5 * (a ** 2 + b ** 2).sum())
         n += int(sel.sum())
-    return math.sqrt(tot / max(n, 1))
+    return tot / max(n, 1)
