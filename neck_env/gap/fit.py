@@ -28,7 +28,7 @@ import numpy as np
 from .model import Model, ParamSpec, Prediction, residual_vector
 
 HUBER_C = 3.0  # in scaled residual units (3 deg of theta)
-PRIOR_WEIGHT = 0.005  # a 1-sigma move of a nominal parameter costs a 0.07 deg RMS misfit
+PRIOR_WEIGHT = 0.0005
 FD_STEP = 0.01  # unit coordinates
 LAMBDAS = (0.25, 1.0, 4.0)
 
