@@ -222,6 +222,7 @@ def test_blind_pair_found_by_the_warming_of_the_cold_neighbours(tmp_path):
     assert coupling["heldout_reduction"] < 0 and not coupling["significant"]
     w = coupling["heldout_cold_neighbours_T"]
     assert w["F"] > w["F_crit"] and not w["warms"]  # the neighbours warm; the tilt is worse
+    assert single["supply_limit"]["significant"]
     assert sorted(rep["verdict"]) == ["supply_limit", "thermal_coupling"]
     assert rep["corrected"]["heldout_reduction"] > 0.4
 
