@@ -88,17 +88,14 @@ class ParamSpec:
 def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False) -> list[ParamSpec]:
     """The rig's baseline: the calibrated model's parameters over physically plausible ranges.
 
-    The bounds are what a rig built to the paper could plausibly have (convection 10-400
-    W/m^2K, transformation temperatures +-25 C and band widths x0.1-x3, stress coefficient
-    x0.15-x6, bending stiffness x0.15-x8, recoverable strain x0.35-x3, resistivity and heat
-    capacity +-30 %, a thermistor lag of 0-3 s when temperatures are recorded), far wider than
+    The bounds below are what a rig built to the paper could plausibly have, far wider than
     ``NeckTrack-v0``'s randomization: whatever the defaults get wrong about a rig is this rig's
-    baseline, not an effect. (An independent rig calibrated to Table 1 on its own sat at the
-    old bounds -- EI x4, C_A x0.33, gamma_L x2, band width x0.25 -- on 8 of 43 datasets in
-    each of two suites.) The
-    priors are weak (a factor ~2 for h, EI, C_A; 8 C for the temperatures; 12 % for the
-    datasheet values R and c; ``fit.PRIOR_WEIGHT`` says how weak) and only hold directions the
-    data cannot see near the calibrated values; ``calibration_summary`` reports which those are.
+    baseline, not an effect. (An independent rig calibrated to Table 1 on its own sat at
+    narrower earlier bounds -- EI x4, C_A x0.33, gamma_L x2, band width x0.25 -- on 8 of 43
+    datasets in each of two suites.) The priors are weak (``fit.PRIOR_WEIGHT`` says how weak)
+    and only hold directions the data cannot see near the calibrated values;
+    ``calibration_summary`` reports which those are. ``docs/gap.md`` (method item 2) tabulates
+    the ranges and priors with what identifies each.
     """
     lo_a, hi_a = ambient - 2.5 * ambient_sigma, ambient + 2.5 * ambient_sigma
     return [
