@@ -31,6 +31,7 @@ import contextlib
 import io
 import itertools
 import json
+import math
 import shutil
 import statistics
 import sys
@@ -109,6 +110,37 @@ def diagnose_folder(ds: Path, rep_path: Path) -> tuple[int, dict, float]:
     return rc, (json.loads(Path(rep_path).read_text()) if rc == 0 else {}), elapsed
 
 
+SIZE_DETECTABLE_DEG = 0.3  # the diagnosis' own bar for a systematic residual (UNEXPLAINED_ABS_DEG)
+
+
+def _tilt_xy(path: Path) -> np.ndarray:
+    """(N, 2) tilt vector, degrees, of one recording (theta, phi columns of the format)."""
+    d = np.genfromtxt(path, delimiter=",", names=True)
+    th, ph = d["theta_deg"], np.radians(d["phi_deg"])
+    return np.column_stack([th * np.cos(ph), th * np.sin(ph)])
+
+
+def effect_size_deg(ds: Path, effects: list[str], seed: int, generator: str,
+                    **generate_kwargs) -> float | None:
+    """How far the dataset's effects move the measured tilt: the RMS tilt-vector difference
+    (over sqrt 2, as the held-out gap) between ``ds`` and the same rig, protocol and sensor
+    noise with the effects off. Separates "missed" from "not in the data": an effect the
+    baseline or the noise hides is not a failure of the decision rule. None for the own
+    generator: its one random stream draws the protocol and noise after the effects, so an
+    effect-off twin is another dataset."""
+    if generator != "independent" or not effects:
+        return None if effects else 0.0
+    from neck_env.gap.independent import generate as generate_independent
+    with tempfile.TemporaryDirectory(prefix="gap_blind_off_") as tmp:
+        generate_independent(tmp, None, seed=seed, **generate_kwargs)
+        sq, n = 0.0, 0
+        for f in sorted(Path(ds).glob("*.csv")):
+            a, b = _tilt_xy(f), _tilt_xy(Path(tmp) / f.name)
+            sq += float(((a - b) ** 2).sum()) / 2
+            n += len(a)
+    return math.sqrt(sq / n) if n else None
+
+
 def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: str = "default",
              generator: str = "synthetic", **generate_kwargs) -> dict:
     ds = root / f"ds_{seed}"
@@ -117,9 +149,11 @@ def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: st
         truth = generate_independent(ds, effects, seed=seed, baseline=baseline, **generate_kwargs)
     else:
         truth = generate(ds, effects, seed=seed, hard=hard, baseline=baseline, **generate_kwargs)
+    size = effect_size_deg(ds, effects, seed, generator, baseline=baseline, **generate_kwargs)
     rc, rep, elapsed = diagnose_folder(ds, root / f"report_{seed}.json")
     return {"seed": seed, "truth": truth["effects"], "rc": rc, "report": rep, "seconds": elapsed,
-            "baseline_truth": truth.get("baseline_ratios"), "physical_truth": truth.get("physical")}
+            "baseline_truth": truth.get("baseline_ratios"), "physical_truth": truth.get("physical"),
+            "effect_size_deg": size}
 
 
 def run_case_task(case: tuple[list[str], int], root: Path | None, run_kwargs: dict) -> dict:
@@ -163,6 +197,21 @@ def summarize(results: list[dict]) -> str:
              f"(target >= 90 %); ranked first and in the verdict {len(okr)}/{len(singles)} = "
              f"{100 * len(okr) / max(1, len(singles)):.0f} %; verdict exactly the effect "
              f"{len(okv)}/{len(singles)} = {100 * len(okv) / max(1, len(singles)):.0f} %")
+
+    sized = [r for r in singles if r.get("effect_size_deg") is not None]
+    if sized:
+        # what the data hold: an effect that moves the tilt less than the tool's own bar for a
+        # systematic residual is for a sharper protocol, not for a better decision rule
+        big = [r for r in sized if r["effect_size_deg"] >= SIZE_DETECTABLE_DEG]
+        small = [r for r in sized if r["effect_size_deg"] < SIZE_DETECTABLE_DEG]
+        for what, rs in ((f">= {SIZE_DETECTABLE_DEG}", big), (f"< {SIZE_DETECTABLE_DEG}", small)):
+            named = [r for r in rs if r in okr]
+            L.append(f"single effects moving the tilt by {what} deg RMS (with the effect off, same "
+                     f"rig and noise): ranked first and in the verdict {len(named)}/{len(rs)}"
+                     + (f" = {100 * len(named) / len(rs):.0f} %" if rs else "") + "; missed: "
+                     + (", ".join(f"{next(iter(r['truth']))} {r['effect_size_deg']:.2f}"
+                                  for r in sorted(rs, key=lambda r: r["effect_size_deg"])
+                                  if r not in named) or "none"))
 
     def top2(r):
         rep = r["report"]
@@ -333,6 +382,12 @@ def main(argv=None) -> int:
                 if sorted(r["truth"]) != sorted(c[0]):
                     raise SystemExit(f"{f}: truth {sorted(r['truth'])} is not this suite's case "
                                      f"{sorted(c[0])} for seed {c[1]} (another suite's folder?)")
+                if "effect_size_deg" not in r and (root / f"ds_{c[1]}").is_dir():
+                    # a folder from before the size was measured: cheap to add (generation only)
+                    r["effect_size_deg"] = effect_size_deg(
+                        root / f"ds_{c[1]}", c[0], c[1], args.generator, baseline=args.baseline,
+                        **gen)
+                    f.write_text(json.dumps(r))
                 done.append(r)
                 suite.remove(c)
         print(f"resuming: {len(done)} dataset(s) already diagnosed in {root}, {len(suite)} to run",

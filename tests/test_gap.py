@@ -424,6 +424,24 @@ def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(
     assert (tmp_path / "report_1000.json").stat().st_mtime_ns == report_1000
 
 
+def test_gap_blind_effect_size_is_what_the_effect_moves_in_the_data(tmp_path, gap_blind_script):
+    """The benchmark's effect size: the RMS tilt-vector difference (over sqrt 2) between a
+    dataset and its effect-off twin. An IMU mount tilted by 3 deg (no yaw) offsets every
+    reading by about 3 deg, so 3 / sqrt 2 = 2.12 deg; nothing switched on, nothing moves; the
+    own generator has no twin (one random stream) and says so with None."""
+    from neck_env.gap.independent import generate as generate_independent
+
+    gb = gap_blind_script
+    kw = dict(baseline="wide", n_recordings=2, duration_s=10.0)
+    tilted = {"imu_misalignment": {"yaw_deg": 0.0, "tilt_deg": 3.0, "tilt_dir_deg": 40.0}}
+    generate_independent(tmp_path / "mis", tilted, seed=11, **kw)
+    size = gb.effect_size_deg(tmp_path / "mis", tilted, 11, "independent", **kw)
+    assert 2.0 < size < 2.25, size
+    generate_independent(tmp_path / "free", [], seed=11, **kw)
+    assert gb.effect_size_deg(tmp_path / "free", [], 11, "independent", **kw) == 0.0
+    assert gb.effect_size_deg(tmp_path / "free", ["head_payload"], 11, "synthetic") is None
+
+
 def test_gap_blind_first_seed_draws_a_fresh_suite_of_the_same_mix(gap_blind_script):
     gb = gap_blind_script
     for quick in (False, True):
