@@ -120,25 +120,27 @@ def _tilt_xy(path: Path) -> np.ndarray:
     return np.column_stack([th * np.cos(ph), th * np.sin(ph)])
 
 
-def effect_size_deg(ds: Path, effects: list[str], seed: int, generator: str,
-                    **generate_kwargs) -> float | None:
+def effect_size_deg(ds: Path, effects: list[str], seed: int, generator: str, hard: bool = False,
+                    **generate_kwargs) -> float:
     """How far the dataset's effects move the measured tilt: the RMS tilt-vector difference
-    (over sqrt 2, as the held-out gap) between ``ds`` and the same rig, protocol and sensor
-    noise with the effects off. Separates "missed" from "not in the data": an effect the
-    baseline or the noise hides is not a failure of the decision rule. None for the own
-    generator: its one random stream draws the protocol and noise after the effects, so an
-    effect-off twin is another dataset."""
-    if generator != "independent" or not effects:
-        return None if effects else 0.0
-    from neck_env.gap.independent import generate as generate_independent
+    (over sqrt 2, as the held-out gap) between ``ds`` and its twin -- the same rig, protocol
+    and sensor noise with the effects off. Separates "missed" from "not in the data": an
+    effect the baseline or the noise hides is not a failure of the decision rule."""
+    if not effects:
+        return 0.0
     with tempfile.TemporaryDirectory(prefix="gap_blind_off_") as tmp:
-        generate_independent(tmp, None, seed=seed, **generate_kwargs)
+        if generator == "independent":
+            from neck_env.gap.independent import generate as generate_independent
+            # its rig, protocol, effects and noise come from separate streams
+            generate_independent(tmp, None, seed=seed, **generate_kwargs)
+        else:
+            generate(tmp, effects, seed=seed, hard=hard, switched_off=True, **generate_kwargs)
         sq, n = 0.0, 0
         for f in sorted(Path(ds).glob("*.csv")):
             a, b = _tilt_xy(f), _tilt_xy(Path(tmp) / f.name)
             sq += float(((a - b) ** 2).sum()) / 2
             n += len(a)
-    return math.sqrt(sq / n) if n else None
+    return math.sqrt(sq / n)
 
 
 def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: str = "default",
@@ -149,7 +151,8 @@ def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: st
         truth = generate_independent(ds, effects, seed=seed, baseline=baseline, **generate_kwargs)
     else:
         truth = generate(ds, effects, seed=seed, hard=hard, baseline=baseline, **generate_kwargs)
-    size = effect_size_deg(ds, effects, seed, generator, baseline=baseline, **generate_kwargs)
+    size = effect_size_deg(ds, effects, seed, generator, hard=hard, baseline=baseline,
+                           **generate_kwargs)
     rc, rep, elapsed = diagnose_folder(ds, root / f"report_{seed}.json")
     return {"seed": seed, "truth": truth["effects"], "rc": rc, "report": rep, "seconds": elapsed,
             "baseline_truth": truth.get("baseline_ratios"), "physical_truth": truth.get("physical"),
@@ -385,8 +388,8 @@ def main(argv=None) -> int:
                 if "effect_size_deg" not in r and (root / f"ds_{c[1]}").is_dir():
                     # a folder from before the size was measured: cheap to add (generation only)
                     r["effect_size_deg"] = effect_size_deg(
-                        root / f"ds_{c[1]}", c[0], c[1], args.generator, baseline=args.baseline,
-                        **gen)
+                        root / f"ds_{c[1]}", c[0], c[1], args.generator, hard=args.hard,
+                        baseline=args.baseline, **gen)
                     f.write_text(json.dumps(r))
                 done.append(r)
                 suite.remove(c)

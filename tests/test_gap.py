@@ -426,9 +426,10 @@ def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(
 
 def test_gap_blind_effect_size_is_what_the_effect_moves_in_the_data(tmp_path, gap_blind_script):
     """The benchmark's effect size: the RMS tilt-vector difference (over sqrt 2) between a
-    dataset and its effect-off twin. An IMU mount tilted by 3 deg (no yaw) offsets every
-    reading by about 3 deg, so 3 / sqrt 2 = 2.12 deg; nothing switched on, nothing moves; the
-    own generator has no twin (one random stream) and says so with None."""
+    dataset and its twin with the effects off (same rig, protocol and noise). An IMU mount
+    tilted by 3 deg (no yaw) offsets every reading by about 3 deg, so 3 / sqrt 2 = 2.12 deg on
+    either generator -- a twin with other noise or another protocol would be far off; nothing
+    switched on, nothing moves."""
     from neck_env.gap.independent import generate as generate_independent
 
     gb = gap_blind_script
@@ -437,9 +438,13 @@ def test_gap_blind_effect_size_is_what_the_effect_moves_in_the_data(tmp_path, ga
     generate_independent(tmp_path / "mis", tilted, seed=11, **kw)
     size = gb.effect_size_deg(tmp_path / "mis", tilted, 11, "independent", **kw)
     assert 2.0 < size < 2.25, size
+    generate(tmp_path / "own", tilted, seed=11, **kw)
+    size = gb.effect_size_deg(tmp_path / "own", tilted, 11, "synthetic", **kw)
+    assert 2.0 < size < 2.25, size
+    twin = generate(tmp_path / "off", tilted, seed=11, switched_off=True, **kw)
+    assert twin["effects"] == {} and "imu_misalignment" in twin["drawn_effects_switched_off"]
     generate_independent(tmp_path / "free", [], seed=11, **kw)
     assert gb.effect_size_deg(tmp_path / "free", [], 11, "independent", **kw) == 0.0
-    assert gb.effect_size_deg(tmp_path / "free", ["head_payload"], 11, "synthetic") is None
 
 
 def test_gap_blind_first_seed_draws_a_fresh_suite_of_the_same_mix(gap_blind_script):

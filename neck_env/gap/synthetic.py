@@ -185,8 +185,12 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
              temperatures: bool | None = None, jitter: float = 0.05,
              truth_path: str | Path | None = None, sensors: SensorParams | None = None,
              write_meta_file: bool = True, hard: bool = False, baseline: str = "default",
-             wire_meta: bool = True) -> dict:
+             wire_meta: bool = True, switched_off: bool = False) -> dict:
     """Write a synthetic dataset to ``out_dir`` and its truth beside it; returns the truth.
+
+    ``switched_off``: the effects are drawn (so that every later draw -- protocol, biases,
+    noise -- is the same) but not simulated: the same rig, protocol and noise without them,
+    against which a benchmark measures how much an effect moves the data.
 
     ``wire_meta``: meta.json gives the wire as its builder knows it: the diameter, and the
     specific heat of the datasheet (the defaults'), not this rig's drawn one.
@@ -201,7 +205,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     params = perturbed_params(rng, jitter=jitter, hard=hard)
     if baseline == "wide":
         params = wide_params(rng)
-    eff = resolve_effects(effects, rng, dataset_s=n_recordings * duration_s)
+    drawn = resolve_effects(effects, rng, dataset_s=n_recordings * duration_s)
+    eff = {} if switched_off else drawn
     if temperatures is None:
         temperatures = bool(rng.integers(2))
     if sensors is None:
@@ -285,6 +290,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     truth = {
         "generator": "neck_env.gap.synthetic", "seed": seed, "protocol": protocol,
         "effects": eff, "effect_names": sorted(eff),
+        **({"drawn_effects_switched_off": drawn} if switched_off else {}),
         "catalogued": sorted(k for k in eff if fx.EFFECTS[k].in_catalogue),
         "temperatures": temperatures, "params": params.to_dict(),
         "sensor_bias": {"accel_g": abias.tolist(), "gyro_dps": gbias.tolist()},
