@@ -17,7 +17,9 @@ catalogued effect alone (three magnitudes each), random pairs, and the out-of-ca
 
 Printed: top-1 identification rate of single effects (target >= 90 %), the rate of the true
 effect ranked first *and* in the verdict (issue 11's scoring), pairs with both effects
-found (target >= 70 %), false positives on effect-free data (target <= 10 %), the median
+found (target >= 70 %), the single-effect score split by how much the effect moves the tilt
+in the data (its RMS against a twin dataset with the effects off: same rig, protocol and noise;
+the tool's own 0.3 deg bar between), false positives on effect-free data (target <= 10 %), the median
 held-out gap reduction once the true effect is added (target >= 60 %), the confusion between
 effects (which effect comes second and how much of the gap it also removes), and whether
 gyro_bias_drift data come out "unexplained" with the residual localized in the tilt signals,
