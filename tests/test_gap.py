@@ -52,6 +52,10 @@ def _check_contract(rep: dict) -> None:
     for loc in rep["localization"]:
         assert loc["signal"] in ("theta", "phi", "temperature")
         assert loc["phase"] in ("heating", "cooling", "rest")
+    assert [a["effect"] for a in rep["absorption"]] == list(fx.CATALOGUE)
+    for a in rep["absorption"]:
+        assert a["heldout_size_deg"] >= 0 and a["heldout_left_deg"] >= 0
+        assert 0 <= a["absorbed"] <= 1 and bool(a["separate"]) == (a["absorbed"] >= 0.8), a
 
 
 def test_noise_free_nominal_data_is_matched_exactly(tmp_path):
@@ -83,6 +87,14 @@ def test_noise_free_nominal_data_is_matched_exactly(tmp_path):
     _check_contract(rep)
     assert rep["verdict"] == [] and rep["unexplained"] is False
     assert rep["effects"][0]["heldout_gap_before"] < 0.05  # degrees, on held-out recordings
+    # what a baseline shift hides of each effect on these recordings: a payload on an upright
+    # neck is a softer backbone (its gravity moment grows with the tilt as the elastic one
+    # does), while no baseline parameter shifts every edge in time as a delay does
+    hidden = {a["effect"]: a for a in rep["absorption"]}
+    assert hidden["head_payload"]["absorbed"] > 0.7 and "EI_scale" in hidden["head_payload"]["by"]
+    assert hidden["actuation_delay"]["absorbed"] < 0.5
+    assert all(a["heldout_size_deg"] > 0.05 for a in hidden.values()
+               if a["effect"] != "sma_fatigue"), hidden  # 6 short pulses barely wear the springs
 
 
 def test_paper_phi_offset_is_imu_misalignment(tmp_path):

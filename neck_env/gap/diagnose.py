@@ -691,6 +691,80 @@ def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequenc
     return out
 
 
+# Each effect at the catalogue's default magnitude (effects.py), in the model's terms: a
+# typical effect, for ``absorption``. A convection change is a draft from the dataset's middle
+# (a constant one *is* h) or, with a single recording, h growing with temperature.
+ABSORB_REFERENCE: dict[str, dict[str, float]] = {
+    "imu_misalignment": {"imu_misalignment.yaw_deg": 10.0},
+    "head_payload": {"head_payload.mass_kg": 0.25, "head_payload.com_height_m": 0.03},
+    "backbone_viscoelasticity": {"backbone_viscoelasticity.stiffness_ratio": 1.0,
+                                 "backbone_viscoelasticity.tau_s": 3.0},
+    "supply_limit": {"supply_limit.compliance_V": 4.0},
+    "actuation_delay": {"actuation_delay.delay_s": 0.3},
+    "thermal_coupling": {"thermal_coupling.conductance_W_K": 0.01},
+    "convection_change": {"convection_change.gain": 1.5, "convection_change.tcoef_per_K": 0.0},
+    "sma_fatigue": {"sma_fatigue.rate": 0.02, "sma_fatigue.max_loss": 0.3},
+    "backbone_friction": {"backbone_friction.friction_Nm": 0.02},
+}
+ABSORB_ITERS = 12  # the baseline refits to the effects' targets (lockstep, from the nominal refit)
+ABSORB_MOSTLY = 0.8  # hidden at least this much: the report says which recording separates them
+
+
+def _absorb_reference(name: str, n_rec: int) -> dict[str, float]:
+    ref = dict(ABSORB_REFERENCE[name])
+    if name == "convection_change":
+        if n_rec >= 2:
+            ref[DRAFT_FROM] = float(n_rec // 2)
+        else:
+            ref.update({"convection_change.gain": 1.0, "convection_change.tcoef_per_K": 0.006})
+    return ref
+
+
+def absorption(model: Model, fitter: Fitter, nominal: Candidate, hold_mask: np.ndarray,
+               max_iter: int = ABSORB_ITERS) -> list[dict]:
+    """What a shift of the baseline makes of each catalogued effect on *these* recordings.
+
+    The nominal refit with the effect added at its catalogue default size
+    (``ABSORB_REFERENCE``) is a target; the baseline alone is refitted to it (on the fitting
+    recordings, as the diagnosis fits) and compared with it on the held-out ones. What it
+    reproduces is what the recordings cannot tell from a different baseline, whatever the
+    decision rule; what it leaves is what an effect of that size shows here. A payload on an
+    upright neck is a softer backbone (most of it absorbed), a delay is not (little absorbed).
+    The ``ambiguous`` list needs the effect's own fit to move the tilt; this does not, so it
+    also covers an effect the nominal refit has absorbed so fully that its fit stays at zero."""
+    refs = [_absorb_reference(n, model.data.n_rec) for n in fx.CATALOGUE]
+    on = [effect_candidate(model, [n], nominal.values, r) for n, r in zip(fx.CATALOGUE, refs)]
+    targets = model.predict([c.setting() for c in on])
+    fits = []
+    for n, t in zip(fx.CATALOGUE, targets):
+        k = Candidate(f"baseline for {n}", (), list(model.nominal), target=t)
+        k.u = k.u_from(nominal.values)
+        fits.append(k)
+    fitter.run(fits, max_iter=max_iter)
+    m = hold_mask
+    rms = lambda a, b: float(np.sqrt(np.mean(((a.tilt_x - b.tilt_x) ** 2
+                                             + (a.tilt_y - b.tilt_y) ** 2)[m]) / 2))
+    # which parameters did the hiding: each one's shift alone (the others at the nominal
+    # refit), by how much of the effect it reproduces -- prior sigmas would favour the
+    # parameters with narrow priors over the one that carries it (EI for a payload)
+    keys = [sp.key for sp in model.nominal if not is_drift_key(sp.key)]
+    singles = [(i, key) for i in range(len(fits)) for key in keys]
+    alone = model.predict([{**nominal.setting(), key: fits[i].values[key]} for i, key in singles])
+    share: dict[int, list[tuple[float, str]]] = {}
+    for (i, key), pr in zip(singles, alone):
+        share.setdefault(i, []).append((rms(targets[i], nominal.pred) - rms(targets[i], pr), key))
+    out = []
+    for i, (n, ref, t, k) in enumerate(zip(fx.CATALOGUE, refs, targets, fits)):
+        size, left = rms(t, nominal.pred), rms(t, k.pred)
+        by = [key for d, key in sorted(share[i], reverse=True)[:2] if d > 0.05 * size]
+        # a shift fitted on the fitting recordings may do worse held out than none: hides nothing
+        absorbed = max(1.0 - left / size, 0.0) if size > 0 else 0.0
+        out.append({"effect": n, "reference": {key.split(".", 1)[-1]: v for key, v in ref.items()},
+                    "size_deg": size, "left_deg": left, "absorbed": absorbed, "by": by,
+                    "separate": SEPARATE.get(n, "") if absorbed >= ABSORB_MOSTLY else ""})
+    return out
+
+
 @dataclass
 class Diagnosis:
     data: Prepared
@@ -715,6 +789,7 @@ class Diagnosis:
     full: dict  # full-rate predictions: {"nominal": [...], "corrected": [...]}
     timing: dict = field(default_factory=dict)
     ambiguous: list = field(default_factory=list)
+    absorption: list = field(default_factory=list)  # ``absorption``: per effect, what a baseline shift hides
     nulls: list = field(default_factory=list)  # generic structural discrepancies, best first
     null_cmp: dict[str, Comparison] = field(default_factory=dict)
 
@@ -1218,6 +1293,8 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
         reasons.append(f"a generic structural discrepancy ({best_null.name.split(':', 1)[1]}) "
                        f"removes {100 * nc.reduction:.0f} % of the held-out gap, more than any "
                        f"catalogued effect: this rig's structure differs from the model's")
+    absorbed = absorption(model, run.fitter, nominal, hold_mask)
+    run.lap("absorption_s")
     run.timing["total_s"] = time.perf_counter() - run.t0
     return Diagnosis(data=data, model=model, hold_rec=run.hold_rec, split_note=run.split_note,
                      nominal=nominal, singles=att.singles, single_cmp=att.single_cmp,
@@ -1230,7 +1307,8 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                      unexplained=bool(reasons), reasons=reasons,
                      full={"nominal": full_nom, "corrected": full_cor,
                            "nominal_heldout": base.full_plain}, timing=run.timing,
-                     ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp)
+                     ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp,
+                     absorption=absorbed)
 
 
 def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate], reference,

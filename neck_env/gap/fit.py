@@ -60,6 +60,9 @@ class Candidate:
     small: int = 0  # consecutive accepted steps that improved the cost by less than rtol
     iters: int = 0
     done: bool = False
+    # fitted to these model predictions instead of the recordings (what a baseline shift can
+    # make of an effect the model itself produces: ``diagnose.absorption``)
+    target: Prediction | None = None
 
     def __post_init__(self):
         if self.u is None:
@@ -96,8 +99,8 @@ class Fitter:
         self.n = None
 
     # -- cost ---------------------------------------------------------------------------------
-    def data_res(self, pred: Prediction) -> np.ndarray:
-        r = residual_vector(self.model.data, pred, self.mask)
+    def data_res(self, pred: Prediction, target: Prediction | None = None) -> np.ndarray:
+        r = residual_vector(self.model.data, pred, self.mask, target)
         if self.n is None:
             self.n = r.size
         return r
@@ -111,7 +114,7 @@ class Fitter:
         preds = self.model.predict([c.setting() for c in cands])
         for c, p in zip(cands, preds):
             c.pred = p
-            c.r = self.data_res(p)
+            c.r = self.data_res(p, c.target)
             c.cost = self.cost_of(c, c.u, c.r)
 
     # -- lockstep LM --------------------------------------------------------------------------
@@ -139,7 +142,7 @@ class Fitter:
             preds = self.model.predict([o.setting(u) for o, u in zip(owners, trials)])
             best: dict[int, tuple[float, np.ndarray, np.ndarray, Prediction, float]] = {}
             for k, (o, u, p) in enumerate(zip(owners, trials, preds)):
-                r = self.data_res(p)
+                r = self.data_res(p, o.target)
                 cost = self.cost_of(o, u, r)
                 lam = LAMBDAS[k % len(LAMBDAS)]
                 if id(o) not in best or cost < best[id(o)][0]:
@@ -180,14 +183,14 @@ class Fitter:
             index.append((base_k, cols))
         preds = self.model.predict(settings)
         for c, (base_k, cols) in zip(cands, index):
-            r0 = self.data_res(preds[base_k])
+            r0 = self.data_res(preds[base_k], c.target)
             c.r, c.pred = r0, preds[base_k]
             c.cost = self.cost_of(c, c.u, r0)
             J = np.empty((r0.size, len(cols)))
             Jp = []
             p0 = c.prior_res(c.u)
             for j, (k, h, u) in enumerate(cols):
-                J[:, j] = (self.data_res(preds[k]) - r0) / h
+                J[:, j] = (self.data_res(preds[k], c.target) - r0) / h
                 Jp.append((c.prior_res(u) - p0) / h if p0.size else np.zeros(0))
             c.J = J
             c.J_prior = np.array(Jp).T if p0.size else np.zeros((0, len(cols)))

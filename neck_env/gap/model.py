@@ -740,13 +740,19 @@ def residual_parts(data_theta, data_phi, data_T, pred_theta, pred_phi, pred_T):
     return e_th, e_ph, e_T
 
 
-def residual_vector(data: Prepared, pred: Prediction, mask: np.ndarray | None = None) -> np.ndarray:
+def residual_vector(data: Prepared, pred: Prediction, mask: np.ndarray | None = None,
+                    target: Prediction | None = None) -> np.ndarray:
     """Scaled residuals of the fit-rate samples (``mask`` selects samples): the tilt-vector
-    error (x, y) and, when recorded, the temperatures / (SIGMA_T sqrt 3)."""
-    mx, my = tilt_vec(data.meas_theta, data.meas_phi)
+    error (x, y) and, when recorded, the temperatures / (SIGMA_T sqrt 3). Against ``target``
+    (another model prediction) instead of the recordings when given."""
+    if target is None:
+        mx, my = tilt_vec(data.meas_theta, data.meas_phi)
+        mT = data.meas_T
+    else:
+        mx, my, mT = target.tilt_x, target.tilt_y, target.T
     parts = [(mx - pred.tilt_x) / SIGMA_THETA, (my - pred.tilt_y) / SIGMA_THETA]
     if data.meas_T is not None:
-        e_T = data.meas_T - pred.T
+        e_T = mT - pred.T
         parts += [e_T[:, k] / (SIGMA_T * math.sqrt(3)) for k in range(3)]
     r = np.stack(parts, axis=1)
     if mask is not None:

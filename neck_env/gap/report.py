@@ -152,6 +152,11 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                        "heldout_gap_effect": _r(a["heldout_gap_effect"]),
                        "effect_size_deg": _r(a["effect_size_deg"], 3)} for a in dg.ambiguous],
         "unexplained_reasons": list(dg.reasons),
+        "absorption": [{"effect": a["effect"], "reference": {k: _r(v, 6) for k, v in a["reference"].items()},
+                        "heldout_size_deg": _r(a["size_deg"]), "heldout_left_deg": _r(a["left_deg"]),
+                        "absorbed": _r(a["absorbed"], 3), "by": list(a["by"]),
+                        "separate": a["separate"]}
+                       for a in dg.absorption],
         "effects": effects,
         "pairs": pairs,
         "structure": [{"name": c.name.split(":", 1)[1],
@@ -301,6 +306,16 @@ def text_report(rep: dict) -> str:
     L.append(f"Verdict: {', '.join(v) if v else 'no catalogued effect is significant'}")
     for a in rep.get("ambiguous", []):
         L.append(f"  ambiguous: {a['effect']} vs baseline {', '.join(a['with'])}: {a['note']}")
+    if rep.get("absorption"):
+        L.append("What a baseline shift hides of each effect at its catalogue size, on these "
+                 "recordings (held out; an effect mostly hidden cannot be told from the baseline "
+                 "here, whatever its size in the rig):")
+        for a in sorted(rep["absorption"], key=lambda a: -a["absorbed"]):
+            by = f"; by {', '.join(a['by'])}" if a["by"] else ""
+            L.append(f"    {a['effect']:25s} moves the tilt {a['heldout_size_deg']:.2f} deg, "
+                     f"{a['heldout_left_deg']:.2f} deg left ({100 * a['absorbed']:.0f} % hidden{by})")
+            if a.get("separate"):
+                L.append(f"      to tell them apart: {a['separate']}")
     c = rep["corrected"]
     if v:
         for name, ps in c["effects"].items():
