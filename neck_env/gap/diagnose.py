@@ -706,7 +706,7 @@ ABSORB_REFERENCE: dict[str, dict[str, float]] = {
     "sma_fatigue": {"sma_fatigue.rate": 0.02, "sma_fatigue.max_loss": 0.3},
     "backbone_friction": {"backbone_friction.friction_Nm": 0.02},
 }
-ABSORB_ITERS = 12  # the baseline refits to the effects' targets (lockstep, from the nominal refit)
+ABSORB_ITERS = 8  # the baseline refits to the effects' targets (lockstep, from the nominal refit)
 ABSORB_MOSTLY = 0.8  # hidden at least this much: the report says which recording separates them
 
 
@@ -753,15 +753,23 @@ def absorption(model: Model, fitter: Fitter, nominal: Candidate, hold_mask: np.n
     share: dict[int, list[tuple[float, str]]] = {}
     for (i, key), pr in zip(singles, alone):
         share.setdefault(i, []).append((rms(targets[i], nominal.pred) - rms(targets[i], pr), key))
+    cold = model.data.cold_neighbours
+    cold = cold & m[:, None] if cold is not None else None
+    rms_T = lambda a, b: float(np.sqrt(np.mean((a.T - b.T)[cold] ** 2)))
     out = []
     for i, (n, ref, t, k) in enumerate(zip(fx.CATALOGUE, refs, targets, fits)):
         size, left = rms(t, nominal.pred), rms(t, k.pred)
         by = [key for d, key in sorted(share[i], reverse=True)[:2] if d > 0.05 * size]
+        # the warming of springs not yet powered: no baseline shift makes it (``warms``)
+        seen_warming = (n in WARMING_EFFECTS and cold is not None and cold.sum() >= 10
+                        and rms_T(t, k.pred) >= max(0.5 * rms_T(t, nominal.pred), WARMING_MIN_ABS_C))
         # a shift fitted on the fitting recordings may do worse held out than none: hides nothing
         absorbed = max(1.0 - left / size, 0.0) if size > 0 else 0.0
         out.append({"effect": n, "reference": {key.split(".", 1)[-1]: v for key, v in ref.items()},
                     "size_deg": size, "left_deg": left, "absorbed": absorbed, "by": by,
-                    "separate": SEPARATE.get(n, "") if absorbed >= ABSORB_MOSTLY else ""})
+                    "seen_in_temperatures": seen_warming,
+                    "separate": (SEPARATE.get(n, "") if absorbed >= ABSORB_MOSTLY and not seen_warming
+                                 else "")})
     return out
 
 

@@ -155,6 +155,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "absorption": [{"effect": a["effect"], "reference": {k: _r(v, 6) for k, v in a["reference"].items()},
                         "heldout_size_deg": _r(a["size_deg"]), "heldout_left_deg": _r(a["left_deg"]),
                         "absorbed": _r(a["absorbed"], 3), "by": list(a["by"]),
+                        "seen_in_temperatures": bool(a["seen_in_temperatures"]),
                         "separate": a["separate"]}
                        for a in dg.absorption],
         "effects": effects,
@@ -313,7 +314,9 @@ def text_report(rep: dict) -> str:
         for a in sorted(rep["absorption"], key=lambda a: -a["absorbed"]):
             by = f"; by {', '.join(a['by'])}" if a["by"] else ""
             L.append(f"    {a['effect']:25s} moves the tilt {a['heldout_size_deg']:.2f} deg, "
-                     f"{a['heldout_left_deg']:.2f} deg left ({100 * a['absorbed']:.0f} % hidden{by})")
+                     f"{a['heldout_left_deg']:.2f} deg left ({100 * a['absorbed']:.0f} % hidden{by})"
+                     + ("; the thermistors see it: springs not yet powered warm"
+                        if a.get("seen_in_temperatures") else ""))
             if a.get("separate"):
                 L.append(f"      to tell them apart: {a['separate']}")
     c = rep["corrected"]
