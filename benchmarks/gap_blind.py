@@ -218,6 +218,20 @@ def summarize(results: list[dict]) -> str:
                                   for r in sorted(rs, key=lambda r: r["effect_size_deg"])
                                   if r not in named) or "none"))
 
+    # does the report's own `absorption` tell the misses? (the true effect, at the catalogue's
+    # size, on each dataset's held-out recordings)
+    hid = {}
+    for r in singles:
+        name = next(iter(r["truth"]))
+        a = {x["effect"]: x for x in r["report"].get("absorption", [])}.get(name)
+        if a is not None:
+            hid.setdefault(r in okr, []).append(a["absorbed"])
+    if hid:
+        L.append("the report's absorption of the true effect (share a baseline shift hides): "
+                 + "; ".join(f"{'named' if k else 'missed'} median {100 * statistics.median(v):.0f} %"
+                             f" ({sum(x >= 0.8 for x in v)}/{len(v)} at 80 % or more)"
+                             for k, v in sorted(hid.items(), reverse=True)))
+
     def top2(r):
         rep = r["report"]
         if len(rep.get("verdict", [])) == 2:
