@@ -748,10 +748,10 @@ def absorption(model: Model, fitter: Fitter, nominal: Candidate, hold_mask: np.n
     # refit), by how much of the effect it reproduces -- prior sigmas would favour the
     # parameters with narrow priors over the one that carries it (EI for a payload)
     keys = [sp.key for sp in model.nominal if not is_drift_key(sp.key)]
-    singles = [(i, key) for i in range(len(fits)) for key in keys]
-    alone = model.predict([{**nominal.setting(), key: fits[i].values[key]} for i, key in singles])
+    one_by_one = [(i, key) for i in range(len(fits)) for key in keys]
+    alone = model.predict([{**nominal.setting(), key: fits[i].values[key]} for i, key in one_by_one])
     share: dict[int, list[tuple[float, str]]] = {}
-    for (i, key), pr in zip(singles, alone):
+    for (i, key), pr in zip(one_by_one, alone):
         share.setdefault(i, []).append((rms(targets[i], nominal.pred) - rms(targets[i], pr), key))
     cold = model.data.cold_neighbours
     cold = cold & m[:, None] if cold is not None else None
