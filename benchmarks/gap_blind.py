@@ -47,7 +47,9 @@ import numpy as np
 from agents.distributed import add_ray_argument, fan_out
 from neck_env import effects as fx
 from neck_env.gap.cli import main as gap_main
+from neck_env.gap.model import tilt_vec
 from neck_env.gap.synthetic import generate
+from neck_env.recording import read_recording
 
 # Why effects can be confused (the physics behind the runner-up table).
 WHY = {
@@ -116,10 +118,9 @@ SIZE_DETECTABLE_DEG = 0.3  # the diagnosis' own bar for a systematic residual (U
 
 
 def _tilt_xy(path: Path) -> np.ndarray:
-    """(N, 2) tilt vector, degrees, of one recording (theta, phi columns of the format)."""
-    d = np.genfromtxt(path, delimiter=",", names=True)
-    th, ph = d["theta_deg"], np.radians(d["phi_deg"])
-    return np.column_stack([th * np.cos(ph), th * np.sin(ph)])
+    """(N, 2) tilt vector, degrees, of one recording."""
+    rec = read_recording(path)
+    return np.column_stack(tilt_vec(rec.theta_deg, rec.phi_deg))
 
 
 def effect_size_deg(ds: Path, effects: list[str], seed: int, generator: str, hard: bool = False,
@@ -197,6 +198,7 @@ def summarize(results: list[dict]) -> str:
     ok1 = [r for r in singles if top1(r) == next(iter(r["truth"]))]
     # issue 11's scoring: the true effect ranked first *and* in the verdict
     okr = [r for r in ok1 if next(iter(r["truth"])) in r["report"].get("verdict", [])]
+    named_ids = {id(r) for r in okr}  # results are dicts: membership by identity, not by value
     okv = [r for r in singles if r["report"].get("verdict") == list(r["truth"])]
     L.append(f"single effects: top-1 {len(ok1)}/{len(singles)} = {100 * len(ok1) / max(1, len(singles)):.0f} % "
              f"(target >= 90 %); ranked first and in the verdict {len(okr)}/{len(singles)} = "
@@ -210,13 +212,13 @@ def summarize(results: list[dict]) -> str:
         big = [r for r in sized if r["effect_size_deg"] >= SIZE_DETECTABLE_DEG]
         small = [r for r in sized if r["effect_size_deg"] < SIZE_DETECTABLE_DEG]
         for what, rs in ((f">= {SIZE_DETECTABLE_DEG}", big), (f"< {SIZE_DETECTABLE_DEG}", small)):
-            named = [r for r in rs if r in okr]
+            named = [r for r in rs if id(r) in named_ids]
             L.append(f"single effects moving the tilt by {what} deg RMS (with the effect off, same "
                      f"rig and noise): ranked first and in the verdict {len(named)}/{len(rs)}"
                      + (f" = {100 * len(named) / len(rs):.0f} %" if rs else "") + "; missed: "
                      + (", ".join(f"{next(iter(r['truth']))} {r['effect_size_deg']:.2f}"
                                   for r in sorted(rs, key=lambda r: r["effect_size_deg"])
-                                  if r not in named) or "none"))
+                                  if id(r) not in named_ids) or "none"))
 
     # does the report's own `absorption` tell the misses? (the true effect, at the catalogue's
     # size, on each dataset's held-out recordings)
@@ -225,7 +227,7 @@ def summarize(results: list[dict]) -> str:
         name = next(iter(r["truth"]))
         a = {x["effect"]: x for x in r["report"].get("absorption", [])}.get(name)
         if a is not None:
-            hid.setdefault(r in okr, []).append(a["absorbed"])
+            hid.setdefault(id(r) in named_ids, []).append(a["absorbed"])
     if hid:
         L.append("the report's absorption of the true effect (share a baseline shift hides): "
                  + "; ".join(f"{'named' if k else 'missed'} median {100 * statistics.median(v):.0f} %"

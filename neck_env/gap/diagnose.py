@@ -691,27 +691,17 @@ def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequenc
     return out
 
 
-# Each effect at the catalogue's default magnitude (effects.py), in the model's terms: a
-# typical effect, for ``absorption``. A convection change is a draft from the dataset's middle
-# (a constant one *is* h) or, with a single recording, h growing with temperature.
-ABSORB_REFERENCE: dict[str, dict[str, float]] = {
-    "imu_misalignment": {"imu_misalignment.yaw_deg": 10.0},
-    "head_payload": {"head_payload.mass_kg": 0.25, "head_payload.com_height_m": 0.03},
-    "backbone_viscoelasticity": {"backbone_viscoelasticity.stiffness_ratio": 1.0,
-                                 "backbone_viscoelasticity.tau_s": 3.0},
-    "supply_limit": {"supply_limit.compliance_V": 4.0},
-    "actuation_delay": {"actuation_delay.delay_s": 0.3},
-    "thermal_coupling": {"thermal_coupling.conductance_W_K": 0.01},
-    "convection_change": {"convection_change.gain": 1.5, "convection_change.tcoef_per_K": 0.0},
-    "sma_fatigue": {"sma_fatigue.rate": 0.02, "sma_fatigue.max_loss": 0.3},
-    "backbone_friction": {"backbone_friction.friction_Nm": 0.02},
-}
+# Each effect at the catalogue's default magnitude (``effects.EFFECTS[name].defaults``) in
+# the model's terms, for ``absorption``: a typical effect. A convection change is a draft from
+# the dataset's middle (a constant one *is* h) or, with a single recording, h growing with
+# temperature.
 ABSORB_ITERS = 8  # the baseline refits to the effects' targets (lockstep, from the nominal refit)
 ABSORB_MOSTLY = 0.8  # hidden at least this much: the report says which recording separates them
 
 
 def _absorb_reference(name: str, n_rec: int) -> dict[str, float]:
-    ref = dict(ABSORB_REFERENCE[name])
+    keys = {sp.key for sp in EFFECT_SPECS[name]}
+    ref = {f"{name}.{k}": v for k, v in fx.EFFECTS[name].defaults.items() if f"{name}.{k}" in keys}
     if name == "convection_change":
         if n_rec >= 2:
             ref[DRAFT_FROM] = float(n_rec // 2)
@@ -725,7 +715,7 @@ def absorption(model: Model, fitter: Fitter, nominal: Candidate, hold_mask: np.n
     """What a shift of the baseline makes of each catalogued effect on *these* recordings.
 
     The nominal refit with the effect added at its catalogue default size
-    (``ABSORB_REFERENCE``) is a target; the baseline alone is refitted to it (on the fitting
+    (``_absorb_reference``) is a target; the baseline alone is refitted to it (on the fitting
     recordings, as the diagnosis fits) and compared with it on the held-out ones. What it
     reproduces is what the recordings cannot tell from a different baseline, whatever the
     decision rule; what it leaves is what an effect of that size shows here. A payload on an
