@@ -8,10 +8,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from neck_env.gap.diagnose import (DRAFT_FROM, MIN_REL, UNEXPLAINED_REST_DEG,
-                                   WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
+from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL,
+                                   UNEXPLAINED_REST_DEG, WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
                                    _convection, _cooling_time_constant, _draft_rebalanced, choose_holdout,
-                                   fast_power, responsible, rest_moves, significant, warms)
+                                   f_crit, fast_power, responsible, rest_moves, significant, warms)
 from neck_env.gap.model import Model, nominal_specs
 from neck_env.params import default_params
 from neck_env.physics.plant import cooling_time_constant_s
@@ -33,6 +33,20 @@ def test_f_test_with_a_consistent_improvement_names_the_effect():
     assert not significant(_cmp(t=1.8, recordings_improved=3))
     # with three held-out recordings every one must improve
     assert not significant(_cmp(t=1.8, recordings=3, recordings_improved=2))
+
+
+def test_the_f_test_is_at_five_percent_on_the_effective_sample_count():
+    # F(40, 40) quantiles: 1.693 at 95 %, 2.111 at 99 %; an effect removing 25 % of the gap
+    # (F = 1.78) over 40 effective samples passes at 5 %, not at 1 %
+    assert ALPHA == 0.05
+    assert f_crit(40.0) == pytest.approx(1.693, abs=2e-3)
+    # (four of five held-out recordings improved: the paired route, which needs all, is out)
+    c = _cmp(F=(1 / 0.75) ** 2, F_crit=f_crit(40.0), t=2.4, reduction=0.25,
+             recordings_improved=4, gap_after_deg=0.45, abs_reduction_deg=0.15)
+    assert significant(c)
+    assert not significant(replace(c, F_crit=2.111))
+    # more effective samples, a smaller critical ratio
+    assert f_crit(200.0) < f_crit(40.0) < f_crit(10.0)
 
 
 def test_a_short_dataset_is_consistent_when_every_block_improved():
@@ -58,26 +72,28 @@ def test_paired_evidence_stands_without_the_f_test():
 @pytest.mark.parametrize("change", [
     dict(reduction=MIN_REL - 0.01, gap_after_deg=0.60 * (1 - MIN_REL + 0.01),
          abs_reduction_deg=0.60 * (MIN_REL - 0.01), F=1.6, F_crit=1.5),
-    dict(gap_before_deg=0.06, gap_after_deg=0.02, abs_reduction_deg=0.04, reduction=2 / 3, F=9.0),
+    dict(gap_before_deg=0.03, gap_after_deg=0.012, abs_reduction_deg=0.018, reduction=0.6,
+         F=6.25),
 ])
 def test_a_small_improvement_is_never_an_effect(change):
-    # however consistent: under 20 % or under 0.05 deg of the held-out gap
+    # however consistent: under 20 % or under MIN_ABS_DEG (0.02 deg) of the held-out gap
+    assert MIN_ABS_DEG == pytest.approx(0.02)
     assert not significant(_cmp(**change))
 
 
 def test_the_practical_margin_is_taken_above_the_sensor_noise():
-    # 0.082 -> 0.040 deg held out (a second effect of a pair on a quiet rig): 0.042 deg of the
-    # raw gap, but the noise (0.031 deg) is in both and no model removes it; above it the
-    # second effect removes sqrt(0.082^2 - 0.031^2) - sqrt(0.040^2 - 0.031^2) = 0.051 deg
-    quiet = dict(gap_before_deg=0.082, gap_after_deg=0.040, reduction=0.51,
-                 abs_reduction_deg=0.042, F=4.2, F_crit=1.4, t=4.3)
+    # 0.040 -> 0.022 deg held out (a payload the baseline has mostly hidden, on a quiet rig):
+    # 0.018 deg of the raw gap, but the noise (0.018 deg) is in both and no model removes it;
+    # above it the effect removes sqrt(0.040^2 - 0.018^2) - sqrt(0.022^2 - 0.018^2) = 0.0231 deg
+    quiet = dict(gap_before_deg=0.040, gap_after_deg=0.022, reduction=0.45,
+                 abs_reduction_deg=0.018, F=3.3, F_crit=1.4, t=4.3)
     assert not significant(_cmp(**quiet))
-    c = _cmp(**quiet, noise_deg=0.031)
-    assert c.systematic_abs_reduction_deg == pytest.approx(0.0508, abs=5e-4)
+    c = _cmp(**quiet, noise_deg=0.018)
+    assert c.systematic_abs_reduction_deg == pytest.approx(0.0231, abs=5e-4)
     assert significant(c)
     # the margin above a noise below both gaps is never smaller than the raw one
-    for noise in (0.0, 0.02, 0.039, 0.040):
-        c = _cmp(**dict(quiet, abs_reduction_deg=0.082 - 0.040), noise_deg=noise)
+    for noise in (0.0, 0.01, 0.021, 0.022):
+        c = _cmp(**dict(quiet, abs_reduction_deg=0.040 - 0.022), noise_deg=noise)
         assert c.systematic_abs_reduction_deg >= c.abs_reduction_deg - 1e-12
 
 

@@ -26,8 +26,8 @@
 5. **Conclusion** (``_conclude``): the final model (baseline + verdict) refitted on all
    recordings; parameter uncertainties and identifiability from its Jacobian; localization of
    the nominal and of the remaining residual; ``unexplained`` when a large systematic residual
-   remains, the reading at rest moves between recordings, or a structural discrepancy explains
-   what no effect does (``Remaining``).
+   remains (with the reason that a structural discrepancy explains it and no effect does, when
+   one does) or the reading at rest moves between recordings (``Remaining``).
 """
 
 from __future__ import annotations
@@ -49,10 +49,16 @@ from .model import (DRAFT_FROM, EFFECT_SPECS, SCANNED, STRUCTURE, SUPPLY_OFF_V, 
                     Prediction, Prepared, drift_specs, is_drift_key, prepare, residual_parts,
                     split_key, switched_off, tilt_vec)
 
-ALPHA = 0.01  # held-out F test level
+# held-out F test level, per effect. The effective sample count (AR(1)) is conservative: on 40
+# effect-free blind datasets of both generators the best of the nine effects passed the F test
+# alone at this level on none (at 0.10 on 4); the margins and consistency below come on top
+ALPHA = 0.05
 T_CRIT = 2.0  # held-out paired t over 5 s blocks (consistency, not the main test)
 MIN_REL = 0.20  # the effect must remove at least this fraction of the held-out gap
-MIN_ABS_DEG = 0.05  # ... and at least this much of it, degrees
+# ... and at least this much of its part above the sensor noise, degrees: a floor on what is
+# worth naming on a quiet rig (where a baseline shift has hidden most of an effect, what is left
+# can be a few hundredths of a degree and still be tested well beyond chance)
+MIN_ABS_DEG = 0.02
 BLOCK_S = 5.0
 MIN_REC_CONSISTENT = 3  # ... or improved in every one of at least this many held-out recordings
 MIN_BLOCKS_CONSISTENT = 3  # ... or (with the F test) in every one of at least this many blocks
@@ -1286,7 +1292,10 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                           "no effect found here moves the rest reading from recording to "
                           "recording"))
     best_null = att.best_null
-    if att.rival and not verdict:
+    # said only beside a large residual: with the practical margin at a few hundredths of a
+    # degree a discrepancy can be significant on a quiet rig whose gap is itself small (own
+    # wide seed 1004, effect-free: latent heat 0.080 -> 0.058 deg), and nothing large is left
+    if att.rival and not verdict and sys_rms > sys_tol:
         nc = att.null_cmp[best_null.name]
         reasons.append(f"a generic structural discrepancy ({best_null.name.split(':', 1)[1]}) "
                        f"removes {100 * nc.reduction:.0f} % of the held-out gap, more than any "
