@@ -11,7 +11,8 @@ import pytest
 from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL,
                                    UNEXPLAINED_REST_DEG, WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
                                    _convection, _cooling_time_constant, _draft_rebalanced, choose_holdout,
-                                   f_crit, fast_power, responsible, rest_moves, significant, warms)
+                                   f_crit, fast_power, responsible, rest_moves, significant,
+                                   structure_reason, warms)
 from neck_env.gap.model import Model, nominal_specs
 from neck_env.params import default_params
 from neck_env.physics.plant import cooling_time_constant_s
@@ -47,6 +48,22 @@ def test_the_f_test_is_at_five_percent_on_the_effective_sample_count():
     assert not significant(replace(c, F_crit=2.111))
     # more effective samples, a smaller critical ratio
     assert f_crit(200.0) < f_crit(40.0) < f_crit(10.0)
+
+
+def test_a_structural_discrepancy_is_a_reason_only_beside_a_large_residual():
+    # own wide seed 1004 (effect-free): latent heat takes a 0.080 deg held-out gap to 0.058 deg,
+    # significant with the 0.02 deg margin, but nothing large is left to call unexplained
+    null = SimpleNamespace(name="structure:latent_heat")
+    att = SimpleNamespace(rival=True, best_null=null,
+                          null_cmp={null.name: _cmp(gap_before_deg=0.080, gap_after_deg=0.058,
+                                                    reduction=0.275)})
+    assert structure_reason(att, [], sys_rms_deg=0.06, sys_tol_deg=0.30) is None
+    why = structure_reason(att, [], sys_rms_deg=0.42, sys_tol_deg=0.31)
+    assert "latent_heat" in why and "28 %" in why
+    # an effect in the verdict, or a discrepancy that is no rival: no such reason
+    assert structure_reason(att, ["backbone_friction"], 0.42, 0.31) is None
+    assert structure_reason(SimpleNamespace(**{**vars(att), "rival": False}), [], 0.42,
+                            0.31) is None
 
 
 def test_a_short_dataset_is_consistent_when_every_block_improved():
