@@ -198,7 +198,7 @@ def summarize(results: list[dict]) -> str:
     ok1 = [r for r in singles if top1(r) == next(iter(r["truth"]))]
     # issue 11's scoring: the true effect ranked first *and* in the verdict
     okr = [r for r in ok1 if next(iter(r["truth"])) in r["report"].get("verdict", [])]
-    named_ids = {id(r) for r in okr}  # results are dicts: membership by identity, not by value
+    named_seeds = {r["seed"] for r in okr}
     okv = [r for r in singles if r["report"].get("verdict") == list(r["truth"])]
     L.append(f"single effects: top-1 {len(ok1)}/{len(singles)} = {100 * len(ok1) / max(1, len(singles)):.0f} % "
              f"(target >= 90 %); ranked first and in the verdict {len(okr)}/{len(singles)} = "
@@ -212,13 +212,13 @@ def summarize(results: list[dict]) -> str:
         big = [r for r in sized if r["effect_size_deg"] >= SIZE_DETECTABLE_DEG]
         small = [r for r in sized if r["effect_size_deg"] < SIZE_DETECTABLE_DEG]
         for what, rs in ((f">= {SIZE_DETECTABLE_DEG}", big), (f"< {SIZE_DETECTABLE_DEG}", small)):
-            named = [r for r in rs if id(r) in named_ids]
+            named = [r for r in rs if r["seed"] in named_seeds]
             L.append(f"single effects moving the tilt by {what} deg RMS (with the effect off, same "
                      f"rig and noise): ranked first and in the verdict {len(named)}/{len(rs)}"
                      + (f" = {100 * len(named) / len(rs):.0f} %" if rs else "") + "; missed: "
                      + (", ".join(f"{next(iter(r['truth']))} {r['effect_size_deg']:.2f}"
                                   for r in sorted(rs, key=lambda r: r["effect_size_deg"])
-                                  if id(r) not in named_ids) or "none"))
+                                  if r["seed"] not in named_seeds) or "none"))
 
     # does the report's own `absorption` tell the misses? (the true effect, at the catalogue's
     # size, on each dataset's held-out recordings)
@@ -227,7 +227,7 @@ def summarize(results: list[dict]) -> str:
         name = next(iter(r["truth"]))
         a = {x["effect"]: x for x in r["report"].get("absorption", [])}.get(name)
         if a is not None:
-            hid.setdefault(id(r) in named_ids, []).append(a["absorbed"])
+            hid.setdefault(r["seed"] in named_seeds, []).append(a["absorbed"])
     if hid:
         L.append("the report's absorption of the true effect (share a baseline shift hides): "
                  + "; ".join(f"{'named' if k else 'missed'} median {100 * statistics.median(v):.0f} %"

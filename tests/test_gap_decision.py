@@ -8,11 +8,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL,
-                                   UNEXPLAINED_REST_DEG, WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
-                                   _convection, _cooling_time_constant, _draft_rebalanced, choose_holdout,
-                                   f_crit, fast_power, responsible, rest_moves, significant,
-                                   structure_reason, warms)
+from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEXPLAINED_REST_DEG,
+                                   WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
+                                   _convection, _cooling_time_constant, _draft_rebalanced,
+                                   choose_holdout, f_crit, fast_power, responsible, rest_moves,
+                                   significant, structure_reason, warms)
 from neck_env.gap.model import Model, nominal_specs
 from neck_env.params import default_params
 from neck_env.physics.plant import cooling_time_constant_s

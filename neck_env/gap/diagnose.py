@@ -697,15 +697,15 @@ def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequenc
     return out
 
 
-# Each effect at the catalogue's default magnitude (``effects.EFFECTS[name].defaults``) in
-# the model's terms, for ``absorption``: a typical effect. A convection change is a draft from
-# the dataset's middle (a constant one *is* h) or, with a single recording, h growing with
-# temperature.
 ABSORB_ITERS = 8  # the baseline refits to the effects' targets (lockstep, from the nominal refit)
 ABSORB_MOSTLY = 0.8  # hidden at least this much: the report says which recording separates them
 
 
 def _absorb_reference(name: str, n_rec: int) -> dict[str, float]:
+    """The effect at the catalogue's default magnitude (``effects.EFFECTS[name].defaults``) in
+    the model's terms, for ``absorption``: a typical effect. A convection change is a draft from
+    the dataset's middle (a constant one *is* h) or, with a single recording, h growing with
+    temperature."""
     keys = {sp.key for sp in EFFECT_SPECS[name]}
     ref = {f"{name}.{k}": v for k, v in fx.EFFECTS[name].defaults.items() if f"{name}.{k}" in keys}
     if name == "convection_change":
