@@ -41,6 +41,7 @@ import tempfile
 import time
 from functools import partial
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -104,12 +105,13 @@ def cases(quick: bool, first_seed: int = FIRST_SEED) -> list[tuple[list[str], in
     return out
 
 
-def diagnose_folder(ds: Path, rep_path: Path) -> tuple[int, dict, float]:
+def diagnose_folder(ds: Path, rep_path: Path, options: Sequence[str] = ()) -> tuple[int, dict, float]:
     """The CLI on a dataset folder exactly as a user runs it (JSON, no plots, console
-    silenced): (exit code, report or {} on failure, seconds)."""
+    silenced; ``options``: further command-line options): (exit code, report or {} on
+    failure, seconds)."""
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()):
-        rc = gap_main([str(ds), "--json", str(rep_path), "--no-plots", "--quiet"])
+        rc = gap_main([str(ds), "--json", str(rep_path), "--no-plots", "--quiet", *options])
     elapsed = time.perf_counter() - t0
     return rc, (json.loads(Path(rep_path).read_text()) if rc == 0 else {}), elapsed
 
@@ -147,7 +149,7 @@ def effect_size_deg(ds: Path, effects: list[str], seed: int, generator: str, har
 
 
 def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: str = "default",
-             generator: str = "synthetic", **generate_kwargs) -> dict:
+             generator: str = "synthetic", options: Sequence[str] = (), **generate_kwargs) -> dict:
     ds = root / f"ds_{seed}"
     if generator == "independent":
         from neck_env.gap.independent import generate as generate_independent
@@ -156,7 +158,7 @@ def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: st
         truth = generate(ds, effects, seed=seed, hard=hard, baseline=baseline, **generate_kwargs)
     size = effect_size_deg(ds, effects, seed, generator, hard=hard, baseline=baseline,
                            **generate_kwargs)
-    rc, rep, elapsed = diagnose_folder(ds, root / f"report_{seed}.json")
+    rc, rep, elapsed = diagnose_folder(ds, root / f"report_{seed}.json", options)
     return {"seed": seed, "truth": truth["effects"], "rc": rc, "report": rep, "seconds": elapsed,
             "baseline_truth": truth.get("baseline_ratios"), "physical_truth": truth.get("physical"),
             "effect_size_deg": size}
@@ -368,6 +370,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-wire-meta", action="store_true",
                     help="leave the wire's diameter and specific heat out of meta.json (h is then "
                     "not identifiable; the cooling time constant still is)")
+    ap.add_argument("--fit-spring-modulus", action="store_true",
+                    help="diagnose with neck-gap --fit-spring-modulus (the springs' martensite "
+                    "modulus fitted as part of the baseline)")
     add_ray_argument(ap, "datasets")
     args = ap.parse_args(argv)
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="gap_blind_"))
@@ -377,6 +382,8 @@ def main(argv=None) -> int:
                              ("wire_meta", False if args.no_wire_meta else None))
            if v is not None}
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
+    if args.fit_spring_modulus:  # only when set: folders of earlier runs resume as they were
+        run_kwargs["options"] = ["--fit-spring-modulus"]
     only = {int(x) for x in args.only.split(",")} if args.only else None
     if args.resume and not args.out:
         ap.error("--resume needs --out (the folder of the interrupted run)")

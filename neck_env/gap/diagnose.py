@@ -573,13 +573,13 @@ def fit_baseline(model: Model, fitter: Fitter, rng: np.random.Generator, max_ite
     that a fit started at the defaults does not reach."""
     specs = list(model.nominal)
     keys = [s.key for s in specs]
-    k = len(SCANNED)
-    lhs = _latin_hypercube(n_scan, k, rng)
+    scanned = [key for key in SCANNED if key in keys]
+    lhs = _latin_hypercube(n_scan, len(scanned), rng)
     base = Candidate("nominal", (), specs)
     trial_u = []
     for row in lhs:
         u = base.u.copy()
-        for j, key in enumerate(SCANNED):
+        for j, key in enumerate(scanned):
             u[keys.index(key)] = 0.02 + 0.96 * row[j]
         trial_u.append(u)
     preds = model.predict([base.setting(u) for u in trial_u])
@@ -1036,12 +1036,13 @@ class _Decision:
     ambiguous: list[dict]
 
 
-def diagnose(ds: Dataset, log=None, max_iter: int = 12) -> Diagnosis:
+def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = False) -> Diagnosis:
     """Run the whole diagnosis on a dataset (see the module docstring): split, calibrate the
-    baseline, attribute, decide, conclude."""
+    baseline, attribute, decide, conclude. ``spring_modulus``: the baseline also fits the
+    martensite modulus (springs not the paper's; ``model.nominal_specs``)."""
     t0 = time.perf_counter()
     data = prepare(ds)
-    model = Model(data)
+    model = Model(data, spring_modulus=spring_modulus)
     hold_rec, note = choose_holdout(ds)
     fit_mask, hold_mask = sample_masks(data, hold_rec)
     run = _Run(data=data, model=model, hold_rec=hold_rec, split_note=note, fit_mask=fit_mask,

@@ -5,14 +5,18 @@ settings over every recording of a dataset in **one** compiled plant call per ti
 = settings x recordings), then maps the head pose through the IMU model to the tilt the rig
 would report, and interpolates onto the recording's sample times.
 
-Nominal parameters (the calibrated model's free ones, see ``neck_env.calibration.FREE``, as
-multipliers / shifts of the defaults so that 1 / 0 is "as calibrated"):
+Nominal parameters (the calibrated model's free ones, see ``neck_env.calibration.FREE``, and
+what a rig built apart from it differs in; ``nominal_specs`` has them all with their ranges), as
+multipliers / shifts of the defaults so that 1 / 0 is "as calibrated":
 
 * ``h_scale``       convection coefficient x
 * ``As_shift_C``    all four transformation temperatures + (datasheet spacing kept)
 * ``CA_scale``      stress coefficient C_A = C_M x
 * ``EI_scale``      backbone bending stiffness x
 * ``gammaL_scale``  recoverable shear strain x
+* ``EM_scale``      martensite modulus x (the cold springs' rate; with ``spring_modulus``)
+* ``R_scale``, ``heat_capacity_scale``, ``width_scale``, ``hysteresis_shift_C``  resistance,
+  heat capacity, width of the transformation bands x; martensite temperatures shifted, C
 * ``ambient_C``     room temperature (from meta.json / thermistors when known)
 * ``thermistor_lag_s``  time constant of the thermistors behind their springs (with T1..T3)
 * ``offset_x_deg``, ``offset_y_deg``  sensor zero offset of the tilt vector (accelerometer
@@ -85,7 +89,8 @@ class ParamSpec:
         return (v - c) / self.prior_sigma
 
 
-def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False) -> list[ParamSpec]:
+def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
+                  spring_modulus: bool = False) -> list[ParamSpec]:
     """The rig's baseline: the calibrated model's parameters over physically plausible ranges.
 
     The bounds below are what a rig built to the paper could plausibly have, far wider than
@@ -109,6 +114,13 @@ def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False) -> 
                   doc="bending stiffness multiplier"),
         ParamSpec("gammaL_scale", 0.35, 3.0, 1.0, "plant", prior_sigma=0.3,
                   doc="recoverable strain multiplier"),
+        # the cold (martensite) springs' rate, on request (``neck-gap --fit-spring-modulus``):
+        # what the antagonists resist a bend with. The datasheet spans 28-41 GPa, and the rate
+        # also goes with the coil geometry (turns, coil and wire diameter) a rig's springs were
+        # wound to. Off by default: see docs/gap.md, "Springs not the paper's"
+        *([ParamSpec("EM_scale", 0.25, 5.0, 1.0, "plant", log=True, prior_sigma=0.5,
+                     doc="martensite modulus multiplier (the cold springs' rate)")]
+          if spring_modulus else []),
         ParamSpec("R_scale", 0.7, 1.4, 1.0, "plant", log=True, prior_sigma=0.12,
                   doc="spring resistance multiplier (resistivity, both phases)"),
         ParamSpec("heat_capacity_scale", 0.7, 1.4, 1.0, "plant", log=True, prior_sigma=0.12,
@@ -129,8 +141,10 @@ def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False) -> 
     ]
 
 
-# The baseline's plant parameters that the global stage scans (the rest start at their prior).
-SCANNED = ("h_scale", "As_shift_C", "CA_scale", "EI_scale", "gammaL_scale", "width_scale")
+# The baseline's plant parameters that the global stage scans (the rest start at their prior;
+# EM_scale only when the baseline has it).
+SCANNED = ("h_scale", "As_shift_C", "CA_scale", "EI_scale", "gammaL_scale", "width_scale",
+           "EM_scale")
 
 
 DRIFT_PER_S = 100.0  # drift nuisance rates are in deg per 100 s of recorded time
@@ -465,13 +479,14 @@ def imu_tilt(q: np.ndarray, mount: np.ndarray | None) -> tuple[np.ndarray, np.nd
 class Model:
     """Nominal params + effects -> batched predictions over a prepared dataset."""
 
-    def __init__(self, data: Prepared, base: NeckParams | None = None):
+    def __init__(self, data: Prepared, base: NeckParams | None = None,
+                 spring_modulus: bool = False):
         self.data = data
         base = base or default_params()
         if tuple(base.muscles.azimuths_deg) != data.azimuths:
             base = base.replace(source="meta.json", muscles__azimuths_deg=data.azimuths)
         self.base = base
-        self.nominal = nominal_specs(data.ambient, data.ambient_sigma, data.has_T)
+        self.nominal = nominal_specs(data.ambient, data.ambient_sigma, data.has_T, spring_modulus)
         # recorded time since the dataset's first sample (recordings back to back, file order):
         # the clock of a sensor drift that builds up over use
         dur = np.array([t[-1] - t[0] for t in data.t])
@@ -500,6 +515,7 @@ class Model:
             material__C_M_Pa_per_K=m.C_M_Pa_per_K * s("CA_scale", 1.0) * s("CM_ratio", 1.0),
             material__latent_heat_J_kg=m.latent_heat_J_kg * s("latent_scale", 1.0),
             backbone__damping_Nms_per_rad=b.backbone.damping_Nms_per_rad * s("damping_scale", 1.0),
+            material__youngs_martensite_Pa=m.youngs_martensite_Pa * s("EM_scale", 1.0),
             backbone__bending_stiffness_Nm2=b.backbone.bending_stiffness_Nm2 * s("EI_scale", 1.0),
             spring__recoverable_shear_strain=(b.spring.recoverable_shear_strain
                                               * s("gammaL_scale", 1.0)),

@@ -314,6 +314,7 @@ def baseline_ratios(params: NeckParams) -> dict[str, float]:
         "CA_scale": params.material.C_A_Pa_per_K / d.material.C_A_Pa_per_K,
         "EI_scale": params.backbone.bending_stiffness_Nm2 / d.backbone.bending_stiffness_Nm2,
         "gammaL_scale": params.spring.recoverable_shear_strain / d.spring.recoverable_shear_strain,
+        "EM_scale": params.material.youngs_martensite_Pa / d.material.youngs_martensite_Pa,
         "R_scale": (params.material.resistivity_martensite_ohm_m
                     / d.material.resistivity_martensite_ohm_m),
         "heat_capacity_scale": params.material.specific_heat_J_kgK / d.material.specific_heat_J_kgK,
