@@ -59,31 +59,38 @@ def _check_contract(rep: dict) -> None:
         assert bool(a["separate"]) == (a["absorbed"] >= 0.8 and not a["seen_in_temperatures"]), a
 
 
+def _write_pulses(ds: Path, params, plan, dt: float = 0.02, length_s: float = 20.0,
+                  temperatures: bool = False) -> None:
+    """Noise-free recordings of ``params``: each entry ``(muscles, amps)`` of ``plan`` powers
+    its muscles at that current from 1 to 6 s; with ``temperatures`` the springs' T1..T3 too."""
+    consts = constants_from_params(params)
+    ambient = params.thermal.ambient_C
+    for k, (muscles, amps) in enumerate(plan):
+        steps = int(length_s / dt)
+        cur = np.zeros((steps, 1, 3))
+        t = (np.arange(steps) + 1) * dt
+        for m in muscles:
+            cur[(t > 1.0) & (t <= 6.0), 0, m] = amps
+        traj, _ = simulate(consts, cur, dt)
+        # row j holds the current commanded during (t_j, t_j + dt]: shift by one sample
+        cols = {"t": np.concatenate([[0.0], t[:-1]]),
+                "i1": cur[:, 0, 0], "i2": cur[:, 0, 1], "i3": cur[:, 0, 2],
+                "theta_deg": np.concatenate([[0.0], traj.theta_deg[:-1, 0]]),
+                "phi_deg": np.concatenate([[0.0], traj.phi_deg[:-1, 0]]) % 360.0}
+        if temperatures:
+            cols.update({f"T{m + 1}": np.concatenate([[ambient], traj.T_C[:-1, 0, m]])
+                         for m in range(3)})
+        write_recording(ds / f"rec_{k + 1:02d}.csv", cols)
+    write_meta(ds, {"ambient_C": ambient, "sample_hz": 1 / dt})
+
+
 def test_noise_free_nominal_data_is_matched_exactly(tmp_path):
     """Recordings made by the calibrated simulator itself (no noise, no effect): the nominal
     refit leaves no gap and nothing is blamed. Checks that the diagnosis fits the project's own
     plant, not a private copy of it."""
-    consts = constants_from_params(default_params())
-    dt = 0.02
     ds = tmp_path / "nominal"
     plan = [(0, 6.0), (1, 7.0), (2, 5.0), (0, 8.0), (1, 4.5), (2, 6.5)]
-    for k, (muscle, amps) in enumerate(plan):
-        steps = int(20.0 / dt)
-        cur = np.zeros((steps, 1, 3))
-        t = (np.arange(steps) + 1) * dt
-        cur[(t > 1.0) & (t <= 6.0), 0, muscle] = amps
-        traj, _ = simulate(consts, cur, dt)
-        # row j holds the current commanded during (t_j, t_j + dt]: shift by one sample
-        t_rows = np.concatenate([[0.0], t[:-1]])
-        write_recording(ds / f"rec_{k + 1:02d}.csv", {
-            "t": t_rows, "i1": cur[:, 0, 0], "i2": cur[:, 0, 1], "i3": cur[:, 0, 2],
-            "theta_deg": np.concatenate([[0.0], traj.theta_deg[:-1, 0]]),
-            "phi_deg": np.concatenate([[0.0], traj.phi_deg[:-1, 0]]) % 360.0,
-            "T1": np.concatenate([[25.0], traj.T_C[:-1, 0, 0]]),
-            "T2": np.concatenate([[25.0], traj.T_C[:-1, 0, 1]]),
-            "T3": np.concatenate([[25.0], traj.T_C[:-1, 0, 2]]),
-        })
-    write_meta(ds, {"ambient_C": default_params().thermal.ambient_C, "sample_hz": 50})
+    _write_pulses(ds, default_params(), [([m], amps) for m, amps in plan], temperatures=True)
     rep = _diagnose(ds, tmp_path)
     _check_contract(rep)
     assert rep["verdict"] == [] and rep["unexplained"] is False
@@ -100,26 +107,6 @@ def test_noise_free_nominal_data_is_matched_exactly(tmp_path):
     assert not hidden["head_payload"]["seen_in_temperatures"]
     assert all(a["heldout_size_deg"] > 0.05 for a in hidden.values()
                if a["effect"] != "sma_fatigue"), hidden  # 6 short pulses barely wear the springs
-
-
-def _write_pulses(ds: Path, params, plan, dt: float = 0.02, length_s: float = 20.0) -> None:
-    """Noise-free recordings of ``params`` (one row per sample, the format's current-then-
-    response alignment): each entry of ``plan`` powers its muscles at its current from 1 to 6 s."""
-    consts = constants_from_params(params)
-    for k, (muscles, amps) in enumerate(plan):
-        steps = int(length_s / dt)
-        cur = np.zeros((steps, 1, 3))
-        t = (np.arange(steps) + 1) * dt
-        for m in muscles:
-            cur[(t > 1.0) & (t <= 6.0), 0, m] = amps
-        traj, _ = simulate(consts, cur, dt)
-        t_rows = np.concatenate([[0.0], t[:-1]])
-        write_recording(ds / f"rec_{k + 1:02d}.csv", {
-            "t": t_rows, "i1": cur[:, 0, 0], "i2": cur[:, 0, 1], "i3": cur[:, 0, 2],
-            "theta_deg": np.concatenate([[0.0], traj.theta_deg[:-1, 0]]),
-            "phi_deg": np.concatenate([[0.0], traj.phi_deg[:-1, 0]]) % 360.0,
-        })
-    write_meta(ds, {"ambient_C": params.thermal.ambient_C, "sample_hz": 1 / dt})
 
 
 def test_stiffer_cold_springs_are_this_rigs_baseline_not_a_softer_backbone(tmp_path):

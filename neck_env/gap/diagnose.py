@@ -573,14 +573,13 @@ def fit_baseline(model: Model, fitter: Fitter, rng: np.random.Generator, max_ite
     that a fit started at the defaults does not reach."""
     specs = list(model.nominal)
     keys = [s.key for s in specs]
-    scanned = [key for key in SCANNED if key in keys]
-    lhs = _latin_hypercube(n_scan, len(scanned), rng)
+    cols = [keys.index(key) for key in SCANNED if key in keys]  # EM_scale only when fitted
+    lhs = _latin_hypercube(n_scan, len(cols), rng)
     base = Candidate("nominal", (), specs)
     trial_u = []
     for row in lhs:
         u = base.u.copy()
-        for j, key in enumerate(scanned):
-            u[keys.index(key)] = 0.02 + 0.96 * row[j]
+        u[cols] = 0.02 + 0.96 * row
         trial_u.append(u)
     preds = model.predict([base.setting(u) for u in trial_u])
     costs = [fitter.cost_of(base, u, fitter.data_res(p)) for u, p in zip(trial_u, preds)]
