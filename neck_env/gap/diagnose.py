@@ -468,6 +468,15 @@ def structure_candidate(model: Model, name: str, nominal_values: dict[str, float
     return c
 
 
+def with_structure(model: Model, cand: Candidate, name: str) -> Candidate:
+    """``cand``'s effects and fit plus one generic structural discrepancy (``model.STRUCTURE``),
+    started at no discrepancy."""
+    c = effect_candidate(model, list(cand.effects), {}, cand.setting())
+    c = Candidate(f"{cand.name}+{name}", c.effects, c.specs + list(STRUCTURE[name]), dict(c.fixed))
+    c.u = c.u_from(cand.setting())
+    return c
+
+
 def _latin_hypercube(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
     """n points in [0, 1)^k, one in each of n slices of every axis."""
     return (rng.permuted(np.tile(np.arange(n), (k, 1)), axis=1).T + rng.random((n, k))) / n
@@ -1148,9 +1157,9 @@ def _profiled(run: _Run, singles: list[Candidate], starts: dict[str, list[dict[s
 
 
 def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
-    """4. The verdict: the best responsible single and a second effect on top of it; with no
-    responsible single but a large systematic gap, pairs of the best singles; then what is
-    ambiguous with a baseline shift."""
+    """4. The verdict: the best responsible single and a second effect on top of it (beyond a
+    generic structural discrepancy on top of it too); with no responsible single but a large
+    systematic gap, pairs of the best singles; then what is ambiguous with a baseline shift."""
     data, model, fitter, say = run.data, run.model, run.fitter, run.say
     singles, single_cmp, best_null = att.singles, att.single_cmp, att.best_null
     sig = [c for c in singles if responsible(single_cmp[c.name])]
@@ -1184,12 +1193,27 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         # iterations as the pairs get: a pair starts from the single's fit and goes on, so
         # without this control any second effect would be credited with the further fitting
         control = effect_candidate(model, list(single.effects), {}, single.setting())
-        fitter.run([control], max_iter=run.max_iter)
-        settle_draft(model, control, run.hold_rec, run.hold_mask)
+        # a second effect's rival is a generic structural discrepancy on top of the first one,
+        # as the first effect's was one on top of the baseline: what the first effect's fit
+        # leaves of a structural misfit must not become a second effect
+        rivals = [with_structure(model, control, n) for n in STRUCTURE]
+        fitter.run([control] + rivals, max_iter=run.max_iter)
+        for c in [control] + rivals:
+            settle_draft(model, c, run.hold_rec, run.hold_mask)
         verdict_c = control
+        rival_cmp = {c.name: compare(data, control.pred, c.pred, run.hold_mask) for c in rivals}
+        rivals.sort(key=lambda c: rival_cmp[c.name].gap_after_deg)
+        rival = rivals[0] if rivals and rival_cmp[rivals[0].name].reduction > 0 else None
+        rival_sig = rival is not None and significant(rival_cmp[rival.name])
+        if rival is not None:
+            s = rival_cmp[rival.name]
+            say(f"  {rival.name:40s} held-out gap {s.gap_before_deg:.3f} -> "
+                f"{s.gap_after_deg:.3f} deg ({100 * s.reduction:+.0f} % vs {first})  "
+                f"[generic structural discrepancy on top of {first}]"
+                f"{'  *' if rival_sig else ''}")
         pair_cmp = _fit_and_judge_pairs(fitter, data, pairs, lambda p: control, nominal,
                                         run.hold_rec, run.hold_mask, run.max_iter, responsible,
-                                        best_null, att.rival)
+                                        rival, rival_sig)
         for p in pairs[:PAIR_TOP]:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s.gap_before_deg:.3f} -> "

@@ -127,6 +127,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_gap_best_single": _r(s.gap_before_deg),
             "heldout_reduction_vs_best_single": _r(s.reduction),
             "heldout_t_vs_best_single": _r(s.t, 2),
+            # the generic structural rival on the pair's reference: the best discrepancy on
+            # top of the first effect (after a responsible single), else on the baseline
+            "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
+                                      if s.vs_structure is not None else None),
             "significant": bool(s.accepted),
             **_warming(s),
         })
@@ -293,8 +297,11 @@ def text_report(rep: dict) -> str:
                  f"{e['heldout_gap_after']:.3f} deg ({100 * e['heldout_reduction']:+5.1f} %, t {e['heldout_t']:.1f})  {ps}")
         _warming_line(L, e)
     for p in rep["pairs"]:
+        rival = (f"; structural rival {p['heldout_gap_structure']:.3f} deg"
+                 if p.get("heldout_gap_structure") is not None else "")
         L.append(f"  {'*' if p['significant'] else ' '} pair {p['name']:30s} -> {p['heldout_gap_after']:.3f} deg "
-                 f"({100 * p['heldout_reduction_vs_best_single']:+.1f} % vs its best single, t {p['heldout_t_vs_best_single']:.1f})")
+                 f"({100 * p['heldout_reduction_vs_best_single']:+.1f} % vs its best single, t {p['heldout_t_vs_best_single']:.1f}"
+                 f"{rival})")
         _warming_line(L, p)
     if rep.get("structure"):
         L.append("Generic structural discrepancies (an effect must beat the best of these too):")
