@@ -461,20 +461,14 @@ def effect_candidate(model: Model, names: Sequence[str], nominal_values: dict[st
     return c
 
 
-def structure_candidate(model: Model, name: str, nominal_values: dict[str, float]) -> Candidate:
-    """The nominal model plus one generic structural discrepancy (``model.STRUCTURE``)."""
-    c = Candidate(name, (), list(model.nominal) + list(STRUCTURE[name]))
-    c.u = c.u_from(nominal_values)
-    return c
-
-
-def with_structure(model: Model, cand: Candidate, name: str) -> Candidate:
-    """``cand``'s effects and fit plus one generic structural discrepancy (``model.STRUCTURE``),
-    started at no discrepancy."""
-    c = effect_candidate(model, list(cand.effects), {}, cand.setting())
-    c = Candidate(f"{cand.name}+{name}", c.effects, c.specs + list(STRUCTURE[name]), dict(c.fixed))
-    c.u = c.u_from(cand.setting())
-    return c
+def structure_candidate(model: Model, name: str, values: dict[str, float],
+                        effects: Sequence[str] = ()) -> Candidate:
+    """The baseline, with ``effects`` (none: the nominal model) and one generic structural
+    discrepancy (``model.STRUCTURE``), started at ``values`` with no discrepancy."""
+    c = effect_candidate(model, list(effects), values)
+    s = Candidate("+".join([*effects, name]), c.effects, c.specs + list(STRUCTURE[name]), c.fixed)
+    s.u = s.u_from(values)
+    return s
 
 
 def _latin_hypercube(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
@@ -1196,7 +1190,8 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         # a second effect's rival is a generic structural discrepancy on top of the first one,
         # as the first effect's was one on top of the baseline: what the first effect's fit
         # leaves of a structural misfit must not become a second effect
-        rivals = [with_structure(model, control, n) for n in STRUCTURE]
+        rivals = [structure_candidate(model, n, control.setting(), control.effects)
+                  for n in STRUCTURE]
         fitter.run([control] + rivals, max_iter=run.max_iter)
         for c in [control] + rivals:
             settle_draft(model, c, run.hold_rec, run.hold_mask)
