@@ -1,6 +1,130 @@
 """A third, structurally independent simulated "real rig" for blind checks of the diagnosis.
 
-DOCSTRING_TABLES
+Written without reading the project's own models (``neck_env.physics``, ``params``,
+``gap.model``/``synthetic``/``independent`` ...): physics from Das et al. (SMA spring multipennate
+neck, head 250 g, Table 1) and textbooks only. It writes datasets in the project's recording
+format (``neck_env.recording``) for the protocol of ``neck_env.experiments``, with the effects of
+``neck_env.effects`` implemented its own way, and the truth beside the folder::
+
+    python -m neck_env.gap.third OUT_DIR --effects supply_limit,gyro_bias_drift --seed 3
+    python -m neck_env.gap.third --calibrate          # redo the Table 1 fit
+
+Structure
+=========
+
+===================  =========================================================================
+part                 this rig
+===================  =========================================================================
+backbone             3 rigid TPU segments (30 mm, 12 g) joined by 2-DOF joints (rotation vector
+                     about a horizontal axis, Rodrigues), a linear rotational spring k and
+                     damper per joint; 6 generalised coordinates, mass matrix from numerical
+                     Jacobians of the bodies (segments + head), gravity on every body,
+                     Coriolis terms neglected (slow motion)
+head                 rigid body, 250 g, COM 30 mm above the head plate, its own inertia
+muscles              3 at 180/60/300 deg; each a V of two springs from base anchors at
+                     +-40 deg (r = 45 mm) to one tendon point on the head plate (r = 30 mm);
+                     each spring its own length, force, stress and phase; pull only (slack = 0)
+springs              0.5 mm wire, D = 3 mm, 25 coils; force k(xi) (delta - delta_L xi), spring
+                     rate from G_M = 10 / G_A = 26 GPa, delta_L from the recoverable shear strain
+SMA law              phase fraction xi relaxes (tau 80 ms) toward two logistic envelopes
+                     (heating: A_s..A_f, cooling: M_f..M_s, 5-95 %), both shifted up by the
+                     spring's shear stress / C_tau; inside the band xi stays (play hysteresis)
+thermal              two nodes per muscle side: each wire (m c, phase-dependent resistivity,
+                     latent heat, constant h to ambient) and one slower crimp/post node per
+                     muscle (1.5 J/K) exchanging heat with its two wires
+electrics            current-regulated supply through a relay: the commanded current splits
+                     between the two parallel springs by their resistances
+integrator           1 ms, linearly implicit Euler in the joint spring/damper/creep terms
+                     (the light segments make them stiff), explicit muscles, heat and phase;
+                     numba-compiled, ~6 s per 15 x 30 s dataset on one core
+IMU                  MPU6050 at 200 Hz, 10 mm above the plate: accelerometer = gravity + the
+                     point's own acceleration (second differences), gyro = body rate; per-dataset
+                     biases (0.05 m/s^2, 0.2 deg/s), white noise; Mahony filter (Kp = 2 rad/s,
+                     no integral term) -> theta, phi from the estimated "up" in the sensor frame
+thermistors          one per muscle on its first spring: first-order lag 1.2 s, offset
+                     N(0, 0.5 C), noise 0.15 C
+===================  =========================================================================
+
+Calibration (``table1()``; ``calibrate()`` fits shift, C_tau, k, gamma_L with a weak prior on
+the first two, h = 120 W/m^2K held; one muscle 5 s from t = 2 s at 25 C, max true theta)
+============================================================================================
+
+=========  ===========  ===========
+current    model, deg   paper, deg
+=========  ===========  ===========
+4 A         1.62         4.73
+5 A         6.41         5.89
+6 A        13.76        11.34
+7 A        23.56        24.92
+8 A        32.43        32.41
+=========  ===========  ===========
+
+RMS 1.88 deg, max 3.11 deg (the paper's 4 -> 5 A step is flatter than any smooth law gives).
+
+Baseline spread
+===============
+
+=======================================  ===========================  ====================
+value                                    wide (default)               default
+=======================================  ===========================  ====================
+convection h (120 W/m^2K)                x0.3..x4 log-uniform          +-3 %
+transformation temperatures, common      +-15 C                        +-0.5 C
+joint stiffness (3.59 N m/rad)           x0.5..x2 log-uniform          +-3 %
+stress coefficient C_tau (4.90 MPa/K)    x0.5..x3 log-uniform          +-3 %
+recoverable strain (0.0321)              x0.7..x1.4                    +-3 %
+resistivity, heat capacity               x0.8..x1.2 each               +-3 %
+ambient                                  15..35 C                      20..28 C
+meta.json ambient                        true +- 0.3 C                 true +- 0.3 C
+=======================================  ===========================  ====================
+
+Effects (names and parameter ranges of ``neck_env.effects``; given parameters override drawn
+ones; each at its "off" value in ``OFF_VALUES`` gives exactly the effect-free data)
+==============================================================================================
+
+===========================  ===============================================================
+effect                       how this rig does it
+===========================  ===============================================================
+imu_misalignment             sensor axes = head axes yawed about the head axis, then tilted
+                             toward ``tilt_dir`` (Rodrigues); the filter knows nothing of it
+head_payload                 point mass on the head axis: total mass, new COM, parallel-axis
+                             inertia of the head body (gravity and inertia)
+backbone_viscoelasticity     Maxwell branch per joint coordinate: ratio x k toward a rest
+                             angle that relaxes with tau (implicit with the joint spring)
+supply_limit                 I = min(commanded, V / (R_par(xi) + R_wiring)); drawn V puts the
+                             cold limit at 4.5..5.8 A (clipped to the catalogue's 2.5..6 V)
+actuation_delay              the plant sees commanded currents ``delay_s`` late
+thermal_coupling             conductance between each pair of muscles' mean wire temperatures
+convection_change            drawn 50/50: h = h0 (1 + k (T - T_amb)) (k 0.004..0.012 /K) on the
+                             wires, or a draft x1.8..2.5 or x0.4..0.55 on wires and posts from
+                             the start of a recording 30..70 % into the dataset (dataset clock)
+sma_fatigue                  loss = min(max_loss, rate x accumulated |d xi| of each spring, both
+                             directions); the lost recoverable extension becomes permanent set
+                             (the cold spring pulls as before, the hot one less); carried over
+backbone_friction            Coulomb moment per joint against its velocity, stiction (1.25 x)
+                             when the stopping impulse is within the static limit
+gyro_bias_drift              gyro bias grows as rate x dataset time along a random horizontal
+                             sensor axis (the firmware zeroes the gyro once per dataset)
+===========================  ===============================================================
+
+Effect sizes (``effect_sizes()``: RMS change of the measured theta, deg, over a 15 x 30 s
+``mixed`` dataset, seed 11, ``default`` baseline; ends in ``EFFECT_ENDS``)
+==============================================================================================
+
+=================================  ===========  ===========  =================================
+effect                             small end    large end    ends
+=================================  ===========  ===========  =================================
+imu_misalignment                   0.36         4.98         yaw 2/25 deg, tilt 0.5/6 deg
+head_payload                       0.28         4.80         0.1 kg at 0 / 0.4 kg at 80 mm
+backbone_viscoelasticity           0.30         4.54         ratio 0.3/3, tau 0.5/8 s
+supply_limit                       3.42         5.37         cold limit 5.8 / 4.5 A
+actuation_delay                    0.21         1.92         0.1 / 1.0 s
+thermal_coupling                   0.35         2.37         0.003 / 0.03 W/K
+convection_change (h(T))           1.52         3.09         k 0.004 / 0.012 /K
+convection_change (draft)          3.64         2.66         x0.4 / x2.5 from 210 s
+sma_fatigue                        0.04         0.49         rate 0.005/0.05, cap 0.1/0.5
+backbone_friction                  0.07         0.67         0.005 / 0.05 N m
+gyro_bias_drift                    0.18         2.00         0.002 / 0.02 deg/s per s
+=================================  ===========  ===========  =================================
 """
 
 from __future__ import annotations
@@ -396,8 +520,8 @@ def _simulate(cmd, P, attach, anchors, fatigue_cum, imu_every):
                 elif xi[s] < xm:
                     dxi = (xm - xi[s]) * DT_S / (KINETIC_TAU_S + DT_S)
                 xi[s] += dxi
-                if dxi < 0.0:
-                    fatigue_cum[s] -= dxi
+                # fatigue counts transformation both ways (a full cycle = 2)
+                fatigue_cum[s] += abs(dxi)
                 # reverse transformation absorbs latent heat, forward releases it
                 Tw[s] += (DT_S * q_in + m_wire * LATENT_J_KG * dxi) / c_wire
             hp = h0 * gain
@@ -827,6 +951,60 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
     truth_p.parent.mkdir(parents=True, exist_ok=True)
     truth_p.write_text(json.dumps(truth, indent=2) + "\n")
     return truth
+
+
+# ============================================================== effect sizes ======================
+
+def _supply_V(cold_limit_A: float, wiring_ohm: float = 0.1) -> float:
+    return cold_limit_A * (_cold_muscle_ohm(calibrated_rig()) + wiring_ohm)
+
+
+# (small end, large end) of each effect for the size table: the catalogue's ranges, read as
+# "least" and "most" of the effect (a yaw of -25 deg is as large as one of +25 deg)
+EFFECT_ENDS = {
+    "imu_misalignment": ({"yaw_deg": 2.0, "tilt_deg": 0.5, "tilt_dir_deg": 0.0},
+                         {"yaw_deg": 25.0, "tilt_deg": 6.0, "tilt_dir_deg": 0.0}),
+    "head_payload": ({"mass_kg": 0.1, "com_height_m": 0.0}, {"mass_kg": 0.4, "com_height_m": 0.08}),
+    "backbone_viscoelasticity": ({"stiffness_ratio": 0.3, "tau_s": 0.5},
+                                 {"stiffness_ratio": 3.0, "tau_s": 8.0}),
+    "supply_limit": ({"compliance_V": round(_supply_V(5.8), 3), "wiring_ohm": 0.1},
+                     {"compliance_V": round(_supply_V(4.5), 3), "wiring_ohm": 0.1}),
+    "actuation_delay": ({"delay_s": 0.1}, {"delay_s": 1.0}),
+    "thermal_coupling": ({"conductance_W_K": 0.003}, {"conductance_W_K": 0.03}),
+    "convection_change": ({"gain": 1.0, "tcoef_per_K": 0.004, "onset_s": 0.0},
+                          {"gain": 1.0, "tcoef_per_K": 0.012, "onset_s": 0.0}),
+    "sma_fatigue": ({"rate": 0.005, "max_loss": 0.1}, {"rate": 0.05, "max_loss": 0.5}),
+    "backbone_friction": ({"friction_Nm": 0.005}, {"friction_Nm": 0.05}),
+    "gyro_bias_drift": ({"drift_dps_per_s": 0.002}, {"drift_dps_per_s": 0.02}),
+}
+DRAFT_ENDS = ({"gain": 0.4, "tcoef_per_K": 0.0, "onset_s": 210.0},
+              {"gain": 2.5, "tcoef_per_K": 0.0, "onset_s": 210.0})
+
+
+def effect_sizes(work_dir, seed: int = 11, verbose: bool = True) -> dict[str, tuple[float, float]]:
+    """RMS change of the measured theta (deg) over a 15 x 30 s ``mixed`` dataset on the
+    calibrated (``default``) baseline, at each effect's small and large end."""
+    from neck_env.recording import read_dataset
+
+    work = Path(work_dir)
+    kw = dict(seed=seed, protocol="mixed", baseline="default", temperatures=False)
+    generate(work / "none", None, **kw)
+    base = np.concatenate([r.theta_deg for r in read_dataset(work / "none")])
+    cases = {n: ends for n, ends in EFFECT_ENDS.items()}
+    cases["convection_change (draft)"] = DRAFT_ENDS
+    out = {}
+    for label, ends in cases.items():
+        name = label.split(" ")[0]
+        rms = []
+        for k, params in enumerate(ends):
+            d = work / f"{name}_{k}"
+            generate(d, {name: params}, **kw)
+            th = np.concatenate([r.theta_deg for r in read_dataset(d)])
+            rms.append(float(np.sqrt(np.mean((th - base) ** 2))))
+        out[label] = (rms[0], rms[1])
+        if verbose:
+            print(f"{label:28s} {rms[0]:7.3f} {rms[1]:7.3f}", flush=True)
+    return out
 
 
 # ============================================================== command line ======================
