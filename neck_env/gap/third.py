@@ -85,7 +85,8 @@ ones; each at its "off" value in ``OFF_VALUES`` gives exactly the effect-free da
 effect                       how this rig does it
 ===========================  ===============================================================
 imu_misalignment             sensor axes = head axes yawed about the head axis, then tilted
-                             toward ``tilt_dir`` (Rodrigues); the filter knows nothing of it
+                             toward ``tilt_dir`` (Rodrigues); the filter knows nothing of it:
+                             measured phi = true phi - yaw, a tilt reading at rest
 head_payload                 point mass on the head axis: total mass, new COM, parallel-axis
                              inertia of the head body (gravity and inertia)
 backbone_viscoelasticity     Maxwell branch per joint coordinate: ratio x k toward a rest
@@ -946,8 +947,11 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
              "baseline": {"kind": baseline, **asdict(rig), "ratios": _ratios(rig)},
              "physical": {"convection_W_m2K": rig.h_W_m2K, "cooling_time_constant_s": _wire_tau_s(rig)},
              "recordings": rec_truth}
+    truth["sensor"] = {"accel_bias_m_s2": acc_bias.tolist(),
+                       "gyro_bias_dps": np.degrees(gyro_bias).tolist(),
+                       "thermistor_offset_C": th_offset.tolist(), "meta_ambient_C": ambient_meta}
     if "gyro_bias_drift" in eff:
-        truth["gyro_drift_axis_sensor"] = drift_axis.tolist()
+        truth["sensor"]["gyro_drift_axis"] = drift_axis.tolist()
     truth_p.parent.mkdir(parents=True, exist_ok=True)
     truth_p.write_text(json.dumps(truth, indent=2) + "\n")
     return truth
