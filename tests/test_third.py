@@ -190,12 +190,14 @@ def test_fatigue_lowers_late_high_current_bend(root):
 
 def test_off_values_give_effect_free_data(root):
     _, a = gen(root)
-    off = {"supply_limit": {"compliance_V": 40.0, "wiring_ohm": 0.1},
-           "convection_change": {"gain": 1.0, "tcoef_per_K": 0.0, "onset_s": 0.0},
-           "imu_misalignment": {"yaw_deg": 0.0, "tilt_deg": 0.0, "tilt_dir_deg": 0.0}}
+    off = {name: dict(values) for name, values in third.OFF_VALUES.items()}
+    off["convection_change"]["onset_s"] = 30.0
+    off["supply_limit"]["wiring_ohm"] = 0.3
+    assert set(off) == set(third.EFFECTS)
     _, b = gen(root, off)
     for ra, rb in zip(a, b):
         assert np.array_equal(ra.theta_deg, rb.theta_deg)
+        assert np.array_equal(ra.temperatures_C, rb.temperatures_C)
 
 
 def test_bad_input_raises_naming_it(root):
