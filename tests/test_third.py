@@ -153,7 +153,7 @@ def test_actuation_delay_shifts_onset(root):
 
 def test_supply_limit_cuts_high_currents_only(root):
     _, a = gen(root)
-    _, b = gen(root, {"supply_limit": {"compliance_V": 3.0, "wiring_ohm": 0.1}})
+    _, b = gen(root, {"supply_limit": {"compliance_V": 3.5, "wiring_ohm": 0.1}})
     hi = [(ra.theta_deg.max(), rb.theta_deg.max()) for ra, rb in zip(a, b) if _amps(ra) == 8.0]
     lo = [(ra.theta_deg.max(), rb.theta_deg.max()) for ra, rb in zip(a, b) if _amps(ra) <= 4.25]
     assert hi and lo
