@@ -115,17 +115,17 @@ Effect sizes (``effect_sizes()``: RMS change of the measured theta, deg, over a 
 =================================  ===========  ===========  =================================
 effect                             small end    large end    ends
 =================================  ===========  ===========  =================================
-imu_misalignment                   0.36         4.98         yaw 2/25 deg, tilt 0.5/6 deg
-head_payload                       0.28         4.80         0.1 kg at 0 / 0.4 kg at 80 mm
-backbone_viscoelasticity           0.30         4.54         ratio 0.3/3, tau 0.5/8 s
-supply_limit                       3.42         5.37         cold limit 5.8 / 4.5 A
-actuation_delay                    0.21         1.92         0.1 / 1.0 s
-thermal_coupling                   0.35         2.37         0.003 / 0.03 W/K
-convection_change (h(T))           1.52         3.09         k 0.004 / 0.012 /K
-convection_change (draft)          3.64         2.66         x0.4 / x2.5 from 210 s
-sma_fatigue                        0.04         0.49         rate 0.005/0.05, cap 0.1/0.5
-backbone_friction                  0.07         0.67         0.005 / 0.05 N m
-gyro_bias_drift                    0.18         2.00         0.002 / 0.02 deg/s per s
+imu_misalignment                   0.36         4.70         yaw 2/25 deg, tilt 0.5/6 deg
+head_payload                       0.21         3.24         0.1 kg at 0 / 0.4 kg at 80 mm
+backbone_viscoelasticity           0.23         4.53         ratio 0.3/3, tau 0.5/8 s
+supply_limit                       3.79         5.98         cold limit 5.8 / 4.5 A
+actuation_delay                    0.20         1.85         0.1 / 1.0 s
+thermal_coupling                   0.30         2.16         0.003 / 0.03 W/K
+convection_change (h(T))           1.49         3.16         k 0.004 / 0.012 /K
+convection_change (draft)          4.09         3.00         x0.4 / x2.5 from 210 s
+sma_fatigue                        0.05         0.65         rate 0.005/0.05, cap 0.1/0.5
+backbone_friction                  0.05         0.44         0.005 / 0.05 N m
+gyro_bias_drift                    0.19         1.88           0.002 / 0.02 deg/s per s
 =================================  ===========  ===========  =================================
 """
 
