@@ -30,9 +30,9 @@ springs              0.75 mm wire, D = 4.5 mm, 12 coils; force k(xi) (delta - de
 SMA law              phase fraction xi relaxes (tau 80 ms) toward two logistic envelopes
                      (heating: A_s..A_f, cooling: M_f..M_s, 5-95 %), both shifted up by the
                      spring's shear stress / C_tau; inside the band xi stays (play hysteresis)
-thermal              two nodes per muscle side: each wire (m c, phase-dependent resistivity,
-                     latent heat, constant h to ambient) and one slower crimp/post node per
-                     muscle (1.5 J/K) exchanging heat with its two wires
+thermal              per muscle, three nodes: each of its two wires (m c, phase-dependent
+                     resistivity, latent heat, constant h to ambient) and one slower crimp/post
+                     node (1.5 J/K, time constant ~35 s) exchanging heat with both wires
 electrics            current-regulated supply through a relay: the commanded current flows
                      through the muscle's two springs in series (0.61 ohm cold, more when hot)
 integrator           1 ms, linearly implicit Euler in the joint spring/damper/creep terms
@@ -61,6 +61,8 @@ current    model, deg   paper, deg
 =========  ===========  ===========
 
 RMS 1.77 deg, max 2.99 deg (the paper's 4 -> 5 A step is flatter than any smooth law gives).
+At 8 A the wire reaches ~185 C and ~470 MPa shear at the end of the pulse: the paper's 32 deg
+needs that much force against the antagonists and the joints.
 
 Baseline spread
 ===============
@@ -125,8 +127,18 @@ convection_change (h(T))           1.49         3.16         k 0.004 / 0.012 /K
 convection_change (draft)          4.09         3.00         x0.4 / x2.5 from 210 s
 sma_fatigue                        0.05         0.65         rate 0.005/0.05, cap 0.1/0.5
 backbone_friction                  0.05         0.44         0.005 / 0.05 N m
-gyro_bias_drift                    0.19         1.88           0.002 / 0.02 deg/s per s
+gyro_bias_drift                    0.19         1.88         0.002 / 0.02 deg/s per s
 =================================  ===========  ===========  =================================
+
+Known limits
+============
+
+* Coriolis and centrifugal terms of the chain are neglected (joint rates stay below ~1 rad/s).
+* The kinetics' hysteresis is a play between two envelopes: partial cycles stay flat inside the
+  band (no minor-loop scaling).
+* Wide rigs with low transformation temperatures in a hot room (shift near -15 C, ambient
+  above ~30 C) do not return to martensite on cooling: those recordings end several degrees
+  tilted (every recording still starts from rest, as the protocol demands).
 """
 
 from __future__ import annotations
@@ -686,7 +698,8 @@ def _mount(eff: Mapping[str, Mapping[str, float]]) -> np.ndarray:
 
 
 def simulate_true(rig: Rig, cmd_fine: np.ndarray, eff: Mapping[str, Mapping[str, float]] | None = None,
-                  t0_s: float = 0.0, fatigue_cum: np.ndarray | None = None):
+                  t0_s: float = 0.0, fatigue_cum: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Plant only: (head rotations, IMU points, wire temperatures, true theta, true phi) at IMU_HZ."""
     eff = eff or {}
     fc = np.zeros(6) if fatigue_cum is None else fatigue_cum
