@@ -448,6 +448,34 @@ def test_blind_independent_rig(tmp_path, effects, seed):
     else:
         assert rep["verdict"] == effects
         assert rep["effects"][0]["name"] == effects[0]
+
+
+# The third rig (neck_env.gap.third), written apart from this model and the independent rig:
+# rigid segments on joints, two springs in series per muscle, its own kinetics law, a second
+# thermal node and a Mahony-fused IMU. Seeds of gap_blind's third suite: an effect-free rig whose
+# best wrong effect takes 2-3 % of the gap, and a supply limit that takes ~74 %.
+THIRD = [([], 1001), (["supply_limit"], 1018)]
+
+
+@pytest.mark.parametrize("effects, seed", THIRD, ids=[e[0] if e else "none" for e, _ in THIRD])
+def test_blind_third_rig(tmp_path, effects, seed):
+    from neck_env.gap.third import generate as generate_third
+
+    ds = tmp_path / "ds"
+    truth = generate_third(ds, effects, seed=seed, baseline="wide")
+    rep = _diagnose(ds, tmp_path)
+    _check_contract(rep)
+    if not effects:
+        assert rep["verdict"] == []
+        tau = rep["calibration"]["cooling_time_constant_s"]
+        assert tau["identified"]
+        assert abs(tau["value"] / truth["physical"]["cooling_time_constant_s"] - 1) < 0.25
+        h = rep["calibration"]["convection_W_m2K"]
+        assert h["identified"] and h["wire_diameter_m"] == pytest.approx(0.75e-3)
+        assert abs(h["value"] / truth["physical"]["convection_W_m2K"] - 1) < 0.25
+    else:
+        assert rep["verdict"] == effects
+        assert rep["effects"][0]["name"] == effects[0]
     if effects == ["thermal_coupling"]:
         # thermistors recorded: the springs not yet powered warm as the coupled model predicts
         # (this rig's structural misfit leaves the tilt evidence alone short of a verdict)
