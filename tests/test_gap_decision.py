@@ -13,9 +13,10 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    _convection, _cooling_time_constant, _draft_rebalanced,
                                    choose_holdout, f_crit, fast_power, responsible, rest_moves,
                                    significant, structure_reason, warms)
-from neck_env.gap.model import Model, nominal_specs
+from neck_env.gap.model import Model, nominal_specs, wire_ratios
 from neck_env.params import default_params
-from neck_env.physics.plant import cooling_time_constant_s
+from neck_env.physics.plant import (HA, HEAT_CAP, LATENT_K, R_A, R_M,
+                                   constants_from_params, cooling_time_constant_s)
 
 
 def _cmp(**kw) -> Comparison:
@@ -332,3 +333,43 @@ def test_h_in_physical_units_needs_the_wire_whose_heat_capacity_it_trades_with()
                           material__specific_heat_J_kgK=none["specific_heat_J_kgK"])
     assert none["heat_capacity_per_area_J_m2K"] / none["value"] == pytest.approx(
         cooling_time_constant_s(fitted))
+
+
+@pytest.mark.parametrize("d_m, c_J_kgK", [(0.75e-3, 837.0), (0.9e-3, 550.0), (0.5e-3, 460.0)])
+def test_the_baseline_is_centred_on_the_rigs_own_wire(d_m, c_J_kgK):
+    """The model's material drawn to the wire meta.json gives: at the prior centres the model
+    heats per A^2 and cools exactly as that wire would (I^2 R/(m c) goes with 1/(d^4 c), the
+    cooling time constant with d c/h); ranges and priors move with the centres."""
+    base = default_params()
+    data = SimpleNamespace(wire_diameter_m=d_m, specific_heat_J_kgK=c_J_kgK, ambient=25.0)
+    ratios = wire_ratios(data, base)
+    specs = {s.key: s for s in nominal_specs(25.0, 1.0, **ratios)}
+    model = SimpleNamespace(base=base, data=data)
+    centred = Model.params_of(model, {k: s.start for k, s in specs.items()})
+    rig = base.replace(spring__wire_diameter_m=d_m, material__specific_heat_J_kgK=c_J_kgK)
+    m, r = constants_from_params(centred)[0], constants_from_params(rig)[0]
+    for col in (R_M, R_A):  # heating per A^2
+        assert m[col] / m[HEAT_CAP] == pytest.approx(r[col] / r[HEAT_CAP], rel=1e-12)
+    assert m[HEAT_CAP] / m[HA] == pytest.approx(r[HEAT_CAP] / r[HA], rel=1e-12)
+    # (the latent heat's temperature equivalent L/c moves by 1/(d/d_model)^2: the multiplier
+    # scales c, not the wire's mass; the transformation's band and shift parameters absorb it)
+    assert m[LATENT_K] * (d_m / base.spring.wire_diameter_m) ** 2 == pytest.approx(r[LATENT_K])
+    # 10-400 W/m^2K on the rig's wire, the +-30-40 % of resistance and heat capacity around it
+    h = specs["h_scale"]
+    assert (h.lower / h.start, h.upper / h.start) == pytest.approx((0.2, 8.0))
+    for key in ("R_scale", "heat_capacity_scale"):
+        s = specs[key]
+        assert (s.lower / s.start, s.upper / s.start) == pytest.approx((0.7, 1.4))
+        assert s.prior_residual(s.start) == 0.0 and s.model_default == 1.0
+    # a wire like the model's (or none given) moves nothing
+    same = SimpleNamespace(wire_diameter_m=base.spring.wire_diameter_m,
+                           specific_heat_J_kgK=base.material.specific_heat_J_kgK)
+    none = SimpleNamespace(wire_diameter_m=None, specific_heat_J_kgK=None)
+    assert (nominal_specs(25.0, 1.0, **wire_ratios(same, base))
+            == nominal_specs(25.0, 1.0, **wire_ratios(none, base)) == nominal_specs(25.0, 1.0))
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_a_wire_ratio_that_is_no_wire_is_refused(bad):
+    with pytest.raises(ValueError, match="wire ratios"):
+        nominal_specs(25.0, 1.0, wire_diameter_ratio=bad)

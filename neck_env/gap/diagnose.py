@@ -817,7 +817,9 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
         v = s.from_unit(float(x))
         params[s.key] = {"value": v, "std": float(sd), "lower": s.lower, "upper": s.upper,
                          "at_bound": bool(x <= 1e-6 or x >= 1 - 1e-6), "doc": s.doc,
-                         "default": s.start}
+                         "default": s.model_default,
+                         **({"prior_center": s.prior_center or s.start}
+                            if s.model_default != s.start else {})}
     for s, sd in zip(cand.specs, std):
         params[s.key]["identified"] = bool(_identified(s, sd, params))
     # identifiability: singular values of the Jacobian in unit coordinates (columns scaled)

@@ -73,6 +73,11 @@ class ParamSpec:
     prior_sigma: float | None = None  # in natural units (log units when log)
     prior_center: float | None = None  # defaults to start
     doc: str = ""
+    default: float | None = None  # the model's own value, where start is centred elsewhere
+
+    @property
+    def model_default(self) -> float:
+        return self.start if self.default is None else self.default
 
     def to_unit(self, v: float) -> float:
         return bounded_to_unit(v, self.lower, self.upper, self.log)
@@ -90,7 +95,8 @@ class ParamSpec:
 
 
 def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
-                  spring_modulus: bool = False) -> list[ParamSpec]:
+                  spring_modulus: bool = False, wire_diameter_ratio: float = 1.0,
+                  specific_heat_ratio: float = 1.0) -> list[ParamSpec]:
     """The rig's baseline: the calibrated model's parameters over physically plausible ranges.
 
     The bounds below are what a rig built to the paper could plausibly have, far wider than
@@ -101,11 +107,23 @@ def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
     and only hold directions the data cannot see near the calibrated values;
     ``calibration_summary`` reports which those are. ``docs/gap.md`` (method item 2) tabulates
     the ranges and priors with what identifies each.
+
+    The thermal multipliers act on the model's wire (``NeckParams.spring``). A rig whose
+    ``meta.json`` gives its own wire (``wire_diameter_ratio`` d/d_model, ``specific_heat_ratio``
+    c/c_model) has them centred, with their ranges, on the model's material drawn to that wire:
+    resistance per length goes with 1/d^2, heat capacity with d^2 c, the cooling surface with d
+    (so ``h_scale``'s range stays 10-400 W/m^2K on the rig's wire). A thinner wire heats faster
+    per A^2 without being "another" rig; at ratios of 1 nothing moves.
     """
     lo_a, hi_a = ambient - 2.5 * ambient_sigma, ambient + 2.5 * ambient_sigma
+    dr, cr = float(wire_diameter_ratio), float(specific_heat_ratio)
+    if not (math.isfinite(dr) and dr > 0 and math.isfinite(cr) and cr > 0):
+        raise ValueError(f"wire ratios must be finite and > 0, got diameter {dr!r}, "
+                         f"specific heat {cr!r}")
+    r_c, c_c = 1.0 / dr ** 2, dr ** 2 * cr  # resistance and heat capacity centres
     return [
-        ParamSpec("h_scale", 0.2, 8.0, 1.0, "plant", log=True, prior_sigma=0.7,
-                  doc="convection coefficient multiplier (default 50 W/m^2K)"),
+        ParamSpec("h_scale", 0.2 * dr, 8.0 * dr, dr, "plant", log=True, prior_sigma=0.7,
+                  doc="convection coefficient multiplier (default 50 W/m^2K)", default=1.0),
         ParamSpec("As_shift_C", -25.0, 25.0, 0.0, "plant", prior_sigma=8.0,
                   doc="shift of the transformation temperatures, C"),
         ParamSpec("CA_scale", 0.15, 6.0, 1.0, "plant", log=True, prior_sigma=0.6,
@@ -121,10 +139,11 @@ def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
         *([ParamSpec("EM_scale", 0.25, 5.0, 1.0, "plant", log=True, prior_sigma=0.5,
                      doc="martensite modulus multiplier (the cold springs' rate)")]
           if spring_modulus else []),
-        ParamSpec("R_scale", 0.7, 1.4, 1.0, "plant", log=True, prior_sigma=0.12,
-                  doc="spring resistance multiplier (resistivity, both phases)"),
-        ParamSpec("heat_capacity_scale", 0.7, 1.4, 1.0, "plant", log=True, prior_sigma=0.12,
-                  doc="spring heat capacity multiplier (specific heat)"),
+        ParamSpec("R_scale", 0.7 * r_c, 1.4 * r_c, r_c, "plant", log=True, prior_sigma=0.12,
+                  doc="spring resistance multiplier (resistivity, both phases)", default=1.0),
+        ParamSpec("heat_capacity_scale", 0.7 * c_c, 1.4 * c_c, c_c, "plant", log=True,
+                  prior_sigma=0.12, doc="spring heat capacity multiplier (specific heat)",
+                  default=1.0),
         ParamSpec("width_scale", 0.1, 3.0, 1.0, "plant", log=True, prior_sigma=0.5,
                   doc="width of the transformation bands (Af - As, Ms - Mf) multiplier"),
         ParamSpec("hysteresis_shift_C", -15.0, 15.0, 0.0, "plant", prior_sigma=6.0,
@@ -476,6 +495,13 @@ def imu_tilt(q: np.ndarray, mount: np.ndarray | None) -> tuple[np.ndarray, np.nd
     return out[:, 0], out[:, 1]
 
 
+def wire_ratios(data: Prepared, base: NeckParams) -> dict[str, float]:
+    """The rig's wire against the model's, as far as ``meta.json`` gives it (1 where not)."""
+    d, c = data.wire_diameter_m, data.specific_heat_J_kgK
+    return {"wire_diameter_ratio": 1.0 if d is None else d / base.spring.wire_diameter_m,
+            "specific_heat_ratio": 1.0 if c is None else c / base.material.specific_heat_J_kgK}
+
+
 class Model:
     """Nominal params + effects -> batched predictions over a prepared dataset."""
 
@@ -486,7 +512,8 @@ class Model:
         if tuple(base.muscles.azimuths_deg) != data.azimuths:
             base = base.replace(source="meta.json", muscles__azimuths_deg=data.azimuths)
         self.base = base
-        self.nominal = nominal_specs(data.ambient, data.ambient_sigma, data.has_T, spring_modulus)
+        self.nominal = nominal_specs(data.ambient, data.ambient_sigma, data.has_T, spring_modulus,
+                                     **wire_ratios(data, base))
         # recorded time since the dataset's first sample (recordings back to back, file order):
         # the clock of a sensor drift that builds up over use
         dur = np.array([t[-1] - t[0] for t in data.t])
