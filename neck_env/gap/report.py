@@ -247,6 +247,8 @@ def text_report(rep: dict) -> str:
     for k, v in cal.items():
         vs = (f"x{v['value']:.3g}" if k.endswith("_scale") else
               f"{v['value'] - v['default']:+.3g} C" if k.endswith("shift_C") else "")
+        if "prior_center" in v:  # centred on the wire meta.json gives (model.nominal_specs)
+            vs += f" (x{v['prior_center']:.3g} for your wire)"
         L.append(f"    {k:20s} {heldout_fit.get(k, float('nan')):10.4g} | {v['value']:10.4g} +- {v['std']:<8.2g}"
                  f" {vs:10s}{'  at bound' if v['at_bound'] else ''}"
                  f"{_unidentified_note(k, v, rep['calibration'])}")
