@@ -79,6 +79,11 @@ class ParamSpec:
     def model_default(self) -> float:
         return self.start if self.default is None else self.default
 
+    @property
+    def center(self) -> float:
+        """Where the prior is centred."""
+        return self.start if self.prior_center is None else self.prior_center
+
     def to_unit(self, v: float) -> float:
         return bounded_to_unit(v, self.lower, self.upper, self.log)
 
@@ -88,7 +93,7 @@ class ParamSpec:
     def prior_residual(self, v: float) -> float:
         if self.prior_sigma is None:
             return 0.0
-        c = self.start if self.prior_center is None else self.prior_center
+        c = self.center
         if self.log:
             return (math.log(v) - math.log(c)) / self.prior_sigma
         return (v - c) / self.prior_sigma
