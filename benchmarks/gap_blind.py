@@ -8,6 +8,7 @@
     python benchmarks/gap_blind.py --generator independent --baseline wide --thermistors always
     python benchmarks/gap_blind.py --generator independent --baseline wide --first-seed 5000  # fresh rigs
     python benchmarks/gap_blind.py --generator third --baseline wide   # a third rig, written apart
+    python benchmarks/gap_blind.py --protocol rig  # another recording protocol (neck_env.experiments)
 
 Each case is a synthetic dataset (``neck_env.gap.synthetic``, seeded; effect magnitudes drawn
 uniformly in the catalogue ranges) diagnosed by the CLI exactly as a user runs it
@@ -49,6 +50,7 @@ import numpy as np
 
 from agents.distributed import add_ray_argument, fan_out
 from neck_env import effects as fx
+from neck_env.experiments import PROTOCOLS
 from neck_env.gap.cli import main as gap_main
 from neck_env.gap.model import tilt_vec
 from neck_env.gap.synthetic import generate
@@ -371,6 +373,9 @@ def main(argv=None) -> int:
                     help="with --out: load the datasets already diagnosed there (result_<seed>.json, "
                     "written as each one finishes) and run only the rest; the summary covers all")
     ap.add_argument("--datasets", type=int, default=None, help="only the first N cases of the suite")
+    ap.add_argument("--protocol", choices=PROTOCOLS, default=None,
+                    help="the recording protocol of every dataset (neck_env.experiments; "
+                    "default: the generator's, 'mixed')")
     ap.add_argument("--recordings", type=int, default=None,
                     help="recordings per dataset (default: the generator's)")
     ap.add_argument("--duration", type=float, default=None,
@@ -388,7 +393,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="gap_blind_"))
     root.mkdir(parents=True, exist_ok=True)
-    gen = {k: v for k, v in (("n_recordings", args.recordings), ("duration_s", args.duration),
+    gen = {k: v for k, v in (("protocol", args.protocol),
+                             ("n_recordings", args.recordings), ("duration_s", args.duration),
                              ("temperatures", {"always": True, "never": False}.get(args.thermistors)),
                              ("wire_meta", False if args.no_wire_meta else None))
            if v is not None}

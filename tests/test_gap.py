@@ -540,6 +540,27 @@ def test_gap_blind_effect_size_is_what_the_effect_moves_in_the_data(tmp_path, ga
     assert gb.effect_size_deg(tmp_path / "free", [], 11, "independent", **kw) == 0.0
 
 
+def test_gap_blind_protocol_reaches_the_dataset_and_its_twin(tmp_path, gap_blind_script):
+    """``--protocol`` draws every dataset (and the twin its effect size is measured against)
+    with that protocol, and a resume with another protocol is refused."""
+    gb = gap_blind_script
+    tiny = ["--recordings", "3", "--duration", "10", "--out", str(tmp_path)]
+    assert gb.main(tiny + ["--protocol", "paper", "--only", "1006"]) == 0
+    truth = json.loads((tmp_path / "ds_1006.truth.json").read_text())
+    assert truth["protocol"] == "paper"
+    assert all(r["protocol"].startswith("pulse ") for r in truth["recordings"])
+    (r,) = json.loads((tmp_path / "results.json").read_text())
+    # measured against a twin of the same paper-protocol dataset with the effect off
+    effects = truth["effects"]
+    assert r["effect_size_deg"] == pytest.approx(gb.effect_size_deg(
+        tmp_path / "ds_1006", effects, 1006, "synthetic", protocol="paper", n_recordings=3,
+        duration_s=10.0))
+    assert r["effect_size_deg"] != pytest.approx(gb.effect_size_deg(
+        tmp_path / "ds_1006", effects, 1006, "synthetic", n_recordings=3, duration_s=10.0))
+    with pytest.raises(SystemExit, match="resume with the same options"):
+        gb.main(tiny + ["--protocol", "rig", "--only", "1006", "--resume"])
+
+
 def test_gap_blind_first_seed_draws_a_fresh_suite_of_the_same_mix(gap_blind_script):
     gb = gap_blind_script
     for quick in (False, True):
