@@ -818,7 +818,7 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
         params[s.key] = {"value": v, "std": float(sd), "lower": s.lower, "upper": s.upper,
                          "at_bound": bool(x <= 1e-6 or x >= 1 - 1e-6), "doc": s.doc,
                          "default": s.model_default,
-                         **({"prior_center": s.center}
+                         **({"prior_center": s.start}
                             if s.model_default != s.start else {})}
     for s, sd in zip(cand.specs, std):
         params[s.key]["identified"] = bool(_identified(s, sd, params))

@@ -70,19 +70,13 @@ class ParamSpec:
     start: float
     kind: str  # "plant" (needs a simulation), "sensor" (post-processing only), "input" (delay)
     log: bool = False
-    prior_sigma: float | None = None  # in natural units (log units when log)
-    prior_center: float | None = None  # defaults to start
+    prior_sigma: float | None = None  # in natural units (log units when log), centred on start
     doc: str = ""
     default: float | None = None  # the model's own value, where start is centred elsewhere
 
     @property
     def model_default(self) -> float:
         return self.start if self.default is None else self.default
-
-    @property
-    def center(self) -> float:
-        """Where the prior is centred."""
-        return self.start if self.prior_center is None else self.prior_center
 
     def to_unit(self, v: float) -> float:
         return bounded_to_unit(v, self.lower, self.upper, self.log)
@@ -93,10 +87,9 @@ class ParamSpec:
     def prior_residual(self, v: float) -> float:
         if self.prior_sigma is None:
             return 0.0
-        c = self.center
         if self.log:
-            return (math.log(v) - math.log(c)) / self.prior_sigma
-        return (v - c) / self.prior_sigma
+            return (math.log(v) - math.log(self.start)) / self.prior_sigma
+        return (v - self.start) / self.prior_sigma
 
 
 def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
