@@ -568,6 +568,20 @@ def test_gap_blind_first_seed_draws_a_fresh_suite_of_the_same_mix(gap_blind_scri
         assert [e for e, _ in fresh] == [e for e, _ in base]
         assert [s for _, s in base] == list(range(1000, 1000 + len(base)))
         assert [s for _, s in fresh] == list(range(5000, 5000 + len(base)))
+    free = gb.cases(False, first_seed=7000, effect_free=30)
+    assert free == [([], s) for s in range(7000, 7030)]
+    with pytest.raises(ValueError, match="at least 1"):
+        gb.cases(False, effect_free=0)
+
+
+def test_gap_blind_rates_carry_their_exact_interval(gap_blind_script):
+    """Clopper-Pearson bounds: 0/6 reaches 46 % (one-sided 2.5 % tail: 1 - 0.025^(1/6)); 1/6
+    of effect-free rigs cannot show a 10 % target missed; 27/27 still leaves 87 %."""
+    gb = gap_blind_script
+    assert gb.rate(0, 6) == "0/6 = 0 % [95 % CI 0-46 %]"
+    assert gb.rate(1, 6) == "1/6 = 17 % [95 % CI 0-64 %]"
+    assert gb.rate(27, 27) == "27/27 = 100 % [95 % CI 87-100 %]"
+    assert gb.rate(0, 0) == "0/0"
 
 
 def test_only_heat_from_a_neighbour_warms_a_spring_not_yet_powered(tmp_path):
