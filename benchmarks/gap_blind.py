@@ -11,6 +11,7 @@
     python benchmarks/gap_blind.py --protocol rig  # another recording protocol (neck_env.experiments)
     python benchmarks/gap_blind.py --generator independent --baseline wide --first-seed 7000 \
         --effect-free 30   # the false-positive rate alone, on 30 fresh effect-free rigs
+    python benchmarks/gap_blind.py --summarize runs/a runs/b   # pool finished runs, print only
 
 Each case is a synthetic dataset (``neck_env.gap.synthetic``, seeded; effect magnitudes drawn
 uniformly in the catalogue ranges) diagnosed by the CLI exactly as a user runs it
@@ -382,6 +383,28 @@ def summarize(results: list[dict]) -> str:
     return "\n".join(L)
 
 
+def load_results(folders: Sequence[str | Path]) -> list[dict]:
+    """The finished datasets of ``--out`` folders, pooled, in seed order. A seed met twice must
+    be the same dataset (the same truth): two runs of one suite are not two samples."""
+    out: dict[tuple[str, int], dict] = {}
+    for folder in folders:
+        files = sorted(Path(folder).glob("result_*.json"))
+        if not files:
+            raise SystemExit(f"{folder}: no result_<seed>.json (not a gap_blind --out folder, "
+                             f"or nothing finished there yet)")
+        setup_file = Path(folder) / "suite.json"
+        setup = json.loads(setup_file.read_text()) if setup_file.exists() else {}
+        rig = setup.get("generator", "synthetic")
+        for f in files:
+            r = json.loads(f.read_text())
+            key = (rig, r["seed"])
+            if key in out:
+                raise SystemExit(f"{f}: seed {r['seed']} of the {rig} generator is already in "
+                                 f"another folder: pool different seeds, not reruns")
+            out[key] = r
+    return [out[k] for k in sorted(out, key=lambda k: (k[1], k[0]))]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -422,8 +445,15 @@ def main(argv=None) -> int:
                     help="instead of the suite: N effect-free rigs at consecutive seeds from "
                     "--first-seed (the false-positive rate with an interval narrow enough to "
                     "compare with the 10 %% target)")
+    ap.add_argument("--summarize", nargs="+", default=None, metavar="DIR",
+                    help="diagnose nothing: print the summary of the finished datasets "
+                    "(result_<seed>.json) in these --out folders, pooled (e.g. two seed ranges of "
+                    "one generator, for a narrower interval)")
     add_ray_argument(ap, "datasets")
     args = ap.parse_args(argv)
+    if args.summarize:
+        print(summarize(load_results(args.summarize)))
+        return 0
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="gap_blind_"))
     root.mkdir(parents=True, exist_ok=True)
     gen = {k: v for k, v in (("protocol", args.protocol),

@@ -584,6 +584,31 @@ def test_gap_blind_rates_carry_their_exact_interval(gap_blind_script):
     assert gb.rate(0, 0) == "0/0"
 
 
+def test_gap_blind_pools_finished_runs_and_refuses_a_rerun_as_a_second_sample(
+        tmp_path, gap_blind_script, capsys):
+    gb = gap_blind_script
+
+    def folder(name, seeds, verdicts):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "suite.json").write_text(json.dumps({"generator": "independent"}))
+        for s, v in zip(seeds, verdicts):
+            (d / f"result_{s}.json").write_text(json.dumps(
+                {"seed": s, "truth": {}, "rc": 0, "seconds": 1.0, "report": {"verdict": v}}))
+        return d
+
+    a = folder("a", [1000, 1001], [[], ["backbone_friction"]])
+    b = folder("b", [5000, 5001, 5002], [[], [], []])
+    assert gb.main(["--summarize", str(a), str(b)]) == 0
+    out = capsys.readouterr().out
+    assert "5 datasets (5 effect-free" in out
+    assert "false positives 1/5 = 20 % [95 % CI 1-72 %]" in out and "1001: ['backbone_friction']" in out
+    with pytest.raises(SystemExit, match="seed 1000 of the independent generator"):
+        gb.main(["--summarize", str(a), str(folder("again", [1000], [[]]))])
+    with pytest.raises(SystemExit, match="no result_"):
+        gb.main(["--summarize", str(tmp_path / "empty")])
+
+
 def test_only_heat_from_a_neighbour_warms_a_spring_not_yet_powered(tmp_path):
     """The cold neighbours (a muscle not yet powered in its recording while another has been)
     are where thermal coupling has a signature no baseline shift has: with coupling in the
