@@ -12,6 +12,7 @@
     python benchmarks/gap_blind.py --generator independent --baseline wide --first-seed 7000 \
         --effect-free 30   # the false-positive rate alone, on 30 fresh effect-free rigs
     python benchmarks/gap_blind.py --summarize runs/a runs/b   # pool finished runs, print only
+    python benchmarks/gap_blind.py --compare runs/mixed runs/rig   # the same seeds, paired
 
 Each case is a synthetic dataset (``neck_env.gap.synthetic``, seeded; effect magnitudes drawn
 uniformly in the catalogue ranges) diagnosed by the CLI exactly as a user runs it
@@ -405,6 +406,64 @@ def load_results(folders: Sequence[str | Path]) -> list[dict]:
     return [out[k] for k in sorted(out, key=lambda k: (k[1], k[0]))]
 
 
+def outcome(r: dict) -> tuple[str, bool]:
+    """(what the diagnosis made of one dataset, right by issue 11's scoring): effect-free and
+    gyro drift -- no verdict (gyro drift also ``unexplained``); a single effect ranked first and
+    in the verdict; a pair exactly the verdict."""
+    truth, rep = sorted(r["truth"]), r["report"]
+    verdict = rep.get("verdict", [])
+    ranked = [e["name"] for e in rep.get("effects", [])]
+    if r["rc"] != 0:
+        return "failed", False
+    if not truth:
+        return ("no verdict", True) if not verdict else (f"false positive {verdict}", False)
+    if "gyro_bias_drift" in truth:
+        ok = not verdict and bool(rep.get("unexplained"))
+        return ("unexplained, nothing blamed" if ok
+                else f"verdict {verdict}, unexplained {rep.get('unexplained')}"), ok
+    if len(truth) == 1:
+        ok = bool(ranked) and ranked[0] == truth[0] and truth[0] in verdict
+        return ("named" if ok else f"missed (first {ranked[0] if ranked else '-'}, "
+                f"verdict {verdict})"), ok
+    ok = set(verdict) == set(truth)
+    return ("exactly the pair" if ok else f"verdict {verdict}"), ok
+
+
+def compare_runs(a: list[dict], b: list[dict]) -> str:
+    """Two runs on the same datasets (seeds and truths; e.g. two protocols, two versions):
+    every dataset whose outcome changed, and per kind the paired counts with an exact McNemar
+    test (two-sided binomial on the datasets only one run gets right) -- the paired comparison
+    tells apart two runs whose separate intervals overlap."""
+    A, B = {r["seed"]: r for r in a}, {r["seed"]: r for r in b}
+    common = sorted(set(A) & set(B))
+    for s in common:
+        if sorted(A[s]["truth"]) != sorted(B[s]["truth"]):
+            raise SystemExit(f"seed {s}: truth {sorted(A[s]['truth'])} in one run, "
+                             f"{sorted(B[s]['truth'])} in the other: not the same datasets")
+    if not common:
+        raise SystemExit("the two runs share no seed: nothing to compare")
+    L = [f"{len(common)} datasets in both runs ({len(set(A) - set(B))} only in the first, "
+         f"{len(set(B) - set(A))} only in the second)"]
+    kinds = {"effect-free": lambda t: not t, "single": lambda t: len(t) == 1 and "gyro_bias_drift" not in t,
+             "pair": lambda t: len(t) == 2, "gyro_bias_drift": lambda t: "gyro_bias_drift" in t}
+    for kind, is_kind in kinds.items():
+        seeds = [s for s in common if is_kind(list(A[s]["truth"]))]
+        if not seeds:
+            continue
+        oa = {s: outcome(A[s]) for s in seeds}
+        ob = {s: outcome(B[s]) for s in seeds}
+        only_a = sum(oa[s][1] and not ob[s][1] for s in seeds)
+        only_b = sum(ob[s][1] and not oa[s][1] for s in seeds)
+        p = binomtest(min(only_a, only_b), only_a + only_b).pvalue if only_a + only_b else 1.0
+        L.append(f"{kind}: right in the first {sum(o[1] for o in oa.values())}/{len(seeds)}, in the "
+                 f"second {sum(o[1] for o in ob.values())}/{len(seeds)}; only the first {only_a}, "
+                 f"only the second {only_b} (exact McNemar p = {p:.2g})")
+        for s in seeds:
+            if oa[s][0] != ob[s][0]:
+                L.append(f"    seed {s} {sorted(A[s]['truth']) or '-'}: {oa[s][0]} -> {ob[s][0]}")
+    return "\n".join(L)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -449,10 +508,17 @@ def main(argv=None) -> int:
                     help="diagnose nothing: print the summary of the finished datasets "
                     "(result_<seed>.json) in these --out folders, pooled (e.g. two seed ranges of "
                     "one generator, for a narrower interval)")
+    ap.add_argument("--compare", nargs=2, default=None, metavar=("DIR_A", "DIR_B"),
+                    help="diagnose nothing: compare two finished runs on the same seeds (two "
+                    "protocols, two versions): the datasets whose outcome changed and a paired "
+                    "(McNemar) test per kind")
     add_ray_argument(ap, "datasets")
     args = ap.parse_args(argv)
     if args.summarize:
         print(summarize(load_results(args.summarize)))
+        return 0
+    if args.compare:
+        print(compare_runs(*(load_results([d]) for d in args.compare)))
         return 0
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="gap_blind_"))
     root.mkdir(parents=True, exist_ok=True)

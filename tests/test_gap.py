@@ -609,6 +609,32 @@ def test_gap_blind_pools_finished_runs_and_refuses_a_rerun_as_a_second_sample(
         gb.main(["--summarize", str(tmp_path / "empty")])
 
 
+def test_gap_blind_compares_two_runs_dataset_by_dataset(tmp_path, gap_blind_script, capsys):
+    """Paired: the McNemar test counts only the datasets one run gets right and the other not
+    (here 5 to 0: p = 2 x 0.5^5 = 0.0625), every changed outcome is listed, and runs of other
+    datasets are refused."""
+    gb = gap_blind_script
+
+    def run(name, named, truth="head_payload"):
+        d = tmp_path / name
+        d.mkdir()
+        for s in range(1000, 1008):
+            first = truth if s - 1000 < named else "backbone_friction"
+            rep = {"verdict": [first], "effects": [{"name": first}]}
+            (d / f"result_{s}.json").write_text(json.dumps(
+                {"seed": s, "truth": {truth: {}}, "rc": 0, "seconds": 1.0, "report": rep}))
+        return str(d)
+
+    assert gb.main(["--compare", run("a", 1), run("b", 6)]) == 0
+    out = capsys.readouterr().out
+    assert "single: right in the first 1/8, in the second 6/8; only the first 0, only the second 5 " \
+           "(exact McNemar p = 0.062)" in out
+    assert "seed 1005 ['head_payload']: missed (first backbone_friction, verdict " \
+           "['backbone_friction']) -> named" in out and "seed 1000" not in out
+    with pytest.raises(SystemExit, match="not the same datasets"):
+        gb.main(["--compare", run("c", 1), run("d", 1, truth="sma_fatigue")])
+
+
 def test_only_heat_from_a_neighbour_warms_a_spring_not_yet_powered(tmp_path):
     """The cold neighbours (a muscle not yet powered in its recording while another has been)
     are where thermal coupling has a signature no baseline shift has: with coupling in the
