@@ -385,8 +385,8 @@ def summarize(results: list[dict]) -> str:
 
 
 def load_results(folders: Sequence[str | Path]) -> list[dict]:
-    """The finished datasets of ``--out`` folders, pooled, in seed order. A seed met twice must
-    be the same dataset (the same truth): two runs of one suite are not two samples."""
+    """The finished datasets of ``--out`` folders, pooled, in seed order. A seed of one
+    generator met twice is refused: two runs of one rig are not two samples."""
     out: dict[tuple[str, int], dict] = {}
     for folder in folders:
         files = sorted(Path(folder).glob("result_*.json"))
