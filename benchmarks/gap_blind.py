@@ -218,12 +218,26 @@ def gyro_localized(rep: dict) -> tuple[bool, bool]:
     return sig, phase
 
 
+KINDS = ("effect-free", "single", "pair", "gyro_bias_drift")
+
+
+def kind(truth) -> str:
+    """Which of ``KINDS`` a dataset of these true effects is (gyro drift, out of the catalogue,
+    counts as its own kind alone or beside an effect)."""
+    if "gyro_bias_drift" in truth:
+        return "gyro_bias_drift"
+    return {0: "effect-free", 1: "single"}.get(len(truth), "pair")
+
+
+def timing(results: list[dict]) -> str:
+    times = [r["seconds"] for r in results]
+    return f"diagnosis time per dataset: median {statistics.median(times):.1f} s, max {max(times):.1f} s"
+
+
 def summarize(results: list[dict]) -> str:
     L = []
-    singles = [r for r in results if len(r["truth"]) == 1 and "gyro_bias_drift" not in r["truth"]]
-    pairs = [r for r in results if len(r["truth"]) == 2]
-    free = [r for r in results if not r["truth"]]
-    gyro = [r for r in results if "gyro_bias_drift" in r["truth"]]
+    by = {k: [r for r in results if kind(r["truth"]) == k] for k in KINDS}
+    free, singles, pairs, gyro = (by[k] for k in KINDS)
     bad = [r for r in results if r["rc"] != 0]
     L.append(f"{len(results)} datasets ({len(free)} effect-free, {len(singles)} single, "
              f"{len(pairs)} pairs, {len(gyro)} gyro_bias_drift); failures: {len(bad)}")
@@ -233,8 +247,7 @@ def summarize(results: list[dict]) -> str:
         return e[0]["name"] if e else None
 
     ok1 = [r for r in singles if top1(r) == next(iter(r["truth"]))]
-    # issue 11's scoring: the true effect ranked first *and* in the verdict
-    okr = [r for r in ok1 if next(iter(r["truth"])) in r["report"].get("verdict", [])]
+    okr = [r for r in singles if outcome(r)[1]]  # issue 11's scoring
     named_seeds = {r["seed"] for r in okr}
     okv = [r for r in singles if r["report"].get("verdict") == list(r["truth"])]
     if singles:
@@ -280,11 +293,11 @@ def summarize(results: list[dict]) -> str:
         return {e["name"] for e in rep.get("effects", [])[:2]}
 
     okp = [r for r in pairs if top2(r) == set(r["truth"])]
-    okpv = [r for r in pairs if set(r["report"].get("verdict", [])) == set(r["truth"])]
+    okpv = [r for r in pairs if outcome(r)[1]]
     if pairs:
         L.append(f"pairs: both in the top 2 {rate(len(okp), len(pairs))} (target >= 70 %); verdict "
                  f"exactly the pair {rate(len(okpv), len(pairs))}")
-    fp = [r for r in free if r["report"].get("verdict")]
+    fp = [r for r in free if not outcome(r)[1]]
     which = ", ".join(f"{r['seed']}: {r['report']['verdict']}" for r in fp)
     L.append(f"effect-free: false positives {rate(len(fp), len(free))} (target <= 10 %)"
              + (f" [{which}]" if fp else "")
@@ -336,9 +349,7 @@ def summarize(results: list[dict]) -> str:
              f"effect-free {coact(free)}/{len(free)}, single {coact(singles)}/{len(singles)}, "
              f"pairs {coact(pairs)}/{len(pairs)}, gyro drift {coact(gyro)}/{len(gyro)}")
     if not singles and not gyro:  # an effect-free suite: the rest is about effects
-        times = [r["seconds"] for r in results]
-        L.append(f"diagnosis time per dataset: median {statistics.median(times):.1f} s, "
-                 f"max {max(times):.1f} s")
+        L.append(timing(results))
         return "\n".join(L)
     gy_un = [r for r in gyro if r["report"].get("unexplained")]
     loc = [gyro_localized(r["report"]) for r in gyro]
@@ -378,9 +389,8 @@ def summarize(results: list[dict]) -> str:
             a, b = sorted(k)
             L.append(f"  {a} / {b}: up to {100 * max(xs):.0f} % -- "
                      + WHY.get(k, "overlapping signatures (see effects.py)"))
-    times = [r["seconds"] for r in results]
     L.append("")
-    L.append(f"diagnosis time per dataset: median {statistics.median(times):.1f} s, max {max(times):.1f} s")
+    L.append(timing(results))
     return "\n".join(L)
 
 
@@ -444,10 +454,8 @@ def compare_runs(a: list[dict], b: list[dict]) -> str:
         raise SystemExit("the two runs share no seed: nothing to compare")
     L = [f"{len(common)} datasets in both runs ({len(set(A) - set(B))} only in the first, "
          f"{len(set(B) - set(A))} only in the second)"]
-    kinds = {"effect-free": lambda t: not t, "single": lambda t: len(t) == 1 and "gyro_bias_drift" not in t,
-             "pair": lambda t: len(t) == 2, "gyro_bias_drift": lambda t: "gyro_bias_drift" in t}
-    for kind, is_kind in kinds.items():
-        seeds = [s for s in common if is_kind(list(A[s]["truth"]))]
+    for k in KINDS:
+        seeds = [s for s in common if kind(A[s]["truth"]) == k]
         if not seeds:
             continue
         oa = {s: outcome(A[s]) for s in seeds}
@@ -455,7 +463,7 @@ def compare_runs(a: list[dict], b: list[dict]) -> str:
         only_a = sum(oa[s][1] and not ob[s][1] for s in seeds)
         only_b = sum(ob[s][1] and not oa[s][1] for s in seeds)
         p = binomtest(min(only_a, only_b), only_a + only_b).pvalue if only_a + only_b else 1.0
-        L.append(f"{kind}: right in the first {sum(o[1] for o in oa.values())}/{len(seeds)}, in the "
+        L.append(f"{k}: right in the first {sum(o[1] for o in oa.values())}/{len(seeds)}, in the "
                  f"second {sum(o[1] for o in ob.values())}/{len(seeds)}; only the first {only_a}, "
                  f"only the second {only_b} (exact McNemar p = {p:.2g})")
         for s in seeds:
