@@ -208,6 +208,23 @@ def test_no_held_out_recording_drives_a_muscle_beyond_the_fitting_set():
     assert (P[~hold].max(axis=0) > 0).all()
 
 
+def test_no_held_out_recording_runs_below_the_fitted_supply_currents():
+    # independent rig, seed 5009: by time alone the 4 A and 4.5 A pulses on muscle 1 and both
+    # 5 A pulses on muscle 3 are held out, so the fit sees nothing under 5.5 A and the held-out
+    # set tests the baseline's extrapolation down to the threshold current
+    supply = [6.0, 4.5, 6.0, 5.5, 5.0, 7.5, 6.0, 6.5, 6.5, 7.0, 8.0, 4.0, 6.5, 5.0, 6.0]
+    muscles = [(2,), (0,), (0, 1, 2), (1,), (2,), (2,), (1,), (0, 1, 2), (0, 1, 2), (0,), (1,),
+               (0,), (1,), (2,), (0,)]
+    peaks = [[a if m in ms else 0.0 for m in range(3)] for a, ms in zip(supply, muscles)]
+    hold = _split(peaks)
+    P, S = np.array(peaks), np.array(supply)
+    assert 4 <= hold.sum() <= 6
+    assert S[hold].min() >= S[~hold].min()  # the lowest supply current is fitted ...
+    assert not hold[11]
+    assert (P[hold].max(axis=0) <= P[~hold].max(axis=0)).all()  # ... and the upper bound kept
+    assert (P[~hold].max(axis=0) > 0).all()
+
+
 def test_a_split_already_interpolating_is_left_alone():
     peaks = [[8.0 - 0.2 * k, 0, 0] for k in range(9)]  # falling currents: held-out ones are inside
     hold = _split(peaks)
