@@ -105,8 +105,12 @@ def test_noise_free_nominal_data_is_matched_exactly(tmp_path):
     # the unpowered springs warm, which no baseline shift does
     assert hidden["thermal_coupling"]["seen_in_temperatures"] and not hidden["thermal_coupling"]["separate"]
     assert not hidden["head_payload"]["seen_in_temperatures"]
+    # 6 short pulses barely wear the springs; the catalogue's draft starts at the middle
+    # recording, and the split holds out the first and third (the 4.5 A pulse, the lowest
+    # current, is fitted: held-out recordings stay inside the fitted currents)
+    assert rep["heldout_recordings"] == ["rec_01", "rec_03"], rep["heldout_recordings"]
     assert all(a["heldout_size_deg"] > 0.05 for a in hidden.values()
-               if a["effect"] != "sma_fatigue"), hidden  # 6 short pulses barely wear the springs
+               if a["effect"] not in ("sma_fatigue", "convection_change")), hidden
 
 
 def test_stiffer_cold_springs_are_this_rigs_baseline_not_a_softer_backbone(tmp_path):
