@@ -4,8 +4,8 @@
 
 1. **Split** (``choose_holdout``): about a third of the recordings are held out from fitting
    (spread over the dataset's time order, the fitting set keeping every muscle used, and no
-   held-out recording driving a muscle harder than the fitting set does); with a single
-   recording its last 40 % is held out.
+   held-out recording driving a muscle harder than the fitting set does or running below its
+   lowest supply current); with a single recording its last 40 % is held out.
 2. **Baseline** (``_calibrate``): this rig's baseline (``model.nominal_specs``) fitted to the
    fitting recordings -- a Latin-hypercube scan, then lockstep Levenberg-Marquardt from the
    defaults and the best scan points (``fit_baseline``); a reading at rest that drifts through
@@ -168,12 +168,14 @@ def _interpolating(hold: np.ndarray, peak_A: np.ndarray) -> np.ndarray:
     R = hold.size
     supply = peak_A.max(axis=1)
 
+    def lowest(fitted: np.ndarray) -> float:
+        powered = supply[fitted] > 0
+        return float(supply[fitted][powered].min()) if powered.any() else 0.0
+
     def inside(j: int, rest: np.ndarray) -> bool:
-        powered = supply[rest] > 0
-        lowest = supply[rest][powered].min() if powered.any() else 0.0
         # inside what stays fitted on every muscle (so also never a muscle's only recording)
         return bool((peak_A[j] - peak_A[rest].max(axis=0) <= 1e-6).all()
-                    and (supply[j] == 0 or supply[j] >= lowest - 1e-6))
+                    and (supply[j] == 0 or supply[j] >= lowest(rest) - 1e-6))
 
     for _ in range(2 * R):
         fit_max = peak_A[~hold].max(axis=0)
@@ -183,10 +185,7 @@ def _interpolating(hold: np.ndarray, peak_A: np.ndarray) -> np.ndarray:
             m = int(np.flatnonzero(over.any(axis=0))[0])
             i = int(held[np.argmax(peak_A[hold, m])])
         else:
-            powered = supply[~hold] > 0
-            if not powered.any():
-                break
-            low = (supply[hold] > 0) & (supply[hold] < supply[~hold][powered].min() - 1e-6)
+            low = (supply[hold] > 0) & (supply[hold] < lowest(~hold) - 1e-6)
             if not low.any():
                 break
             i = int(held[low][np.argmin(supply[held[low]])])
