@@ -425,13 +425,14 @@ def outcome(r: dict) -> tuple[str, bool]:
     ranked = [e["name"] for e in rep.get("effects", [])]
     if r["rc"] != 0:
         return "failed", False
-    if not truth:
+    k = kind(truth)
+    if k == "effect-free":
         return ("no verdict", True) if not verdict else (f"false positive {verdict}", False)
-    if "gyro_bias_drift" in truth:
+    if k == "gyro_bias_drift":
         ok = not verdict and bool(rep.get("unexplained"))
         return ("unexplained, nothing blamed" if ok
                 else f"verdict {verdict}, unexplained {rep.get('unexplained')}"), ok
-    if len(truth) == 1:
+    if k == "single":
         ok = bool(ranked) and ranked[0] == truth[0] and truth[0] in verdict
         return ("named" if ok else f"missed (first {ranked[0] if ranked else '-'}, "
                 f"verdict {verdict})"), ok
