@@ -261,20 +261,23 @@ def test_blind_small(tmp_path, effects, seed, baseline):
 
 def test_blind_pair_found_by_the_warming_of_the_cold_neighbours(tmp_path):
     """A supply limit and thermal coupling (gap_blind's own-default seed 1034): coupling alone
-    makes the tilt worse (it is the supply limit the tilt needs), but the springs not yet
-    powered warm as coupling predicts, and the pair of the two is named. (With the baseline
-    prior at 0.005 the supply limit alone fell short and the pair came only through the
-    neighbours' warming; at 0.0005 the refitted baseline leaves the supply limit enough to be
-    responsible alone, and coupling joins it as the second effect.)"""
+    does nothing for the tilt (2 % worse: it is the supply limit the tilt needs), but the
+    springs not yet powered warm as coupling predicts, and the pair of the two is named. (With
+    the baseline prior at 0.005 the supply limit alone fell short and the pair came only
+    through the neighbours' warming; at 0.0005 the refitted baseline leaves the supply limit
+    enough to be responsible alone, and coupling joins it as the second effect. Coupling alone
+    is responsible too since a tilt that is not significantly worse no longer vetoes the
+    warming.)"""
     ds = tmp_path / "ds"
     generate(ds, ["supply_limit", "thermal_coupling"], seed=1034, baseline="default")
     rep = _diagnose(ds, tmp_path)
     _check_contract(rep)
     single = {e["name"]: e for e in rep["effects"]}
     coupling = single["thermal_coupling"]
-    assert coupling["heldout_reduction"] < 0 and not coupling["significant"]
+    assert -0.1 < coupling["heldout_reduction"] < 0  # the tilt alone does not ask for it ...
     w = coupling["heldout_cold_neighbours_T"]
-    assert w["F"] > w["F_crit"] and not w["warms"]  # the neighbours warm; the tilt is worse
+    assert w["F"] > w["F_crit"] and w["warms"]  # ... the neighbours' thermistors do
+    assert coupling["significant"]
     assert single["supply_limit"]["significant"]
     assert sorted(rep["verdict"]) == ["supply_limit", "thermal_coupling"]
     assert rep["corrected"]["heldout_reduction"] > 0.4

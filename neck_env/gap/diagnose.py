@@ -377,10 +377,12 @@ def responsible(c: Comparison) -> bool:
 
 def warms(c: Comparison) -> bool:
     """The cold neighbours' held-out temperature residual falls by the F test and by a
-    practical margin (``WARMING_MIN_REL``, ``WARMING_MIN_ABS_C``), and the tilt is no worse
-    than the reference's: direct evidence no baseline shift or structural discrepancy can give
-    (they leave an unpowered spring at ambient)."""
-    return neighbours_warm(c.warming) and c.reduction >= 0.0
+    practical margin (``WARMING_MIN_REL``, ``WARMING_MIN_ABS_C``), and the tilt is not
+    significantly worse than the reference's (the F test turned round): direct evidence no
+    baseline shift or structural discrepancy can give (they leave an unpowered spring at
+    ambient). A tilt a few per cent worse is noise beside it; a significantly worse one says
+    another effect is in the tilt, which the pairs then look for."""
+    return neighbours_warm(c.warming) and c.F * c.F_crit >= 1.0
 
 
 def neighbours_warm(w: Warming | None) -> bool:
@@ -389,18 +391,42 @@ def neighbours_warm(w: Warming | None) -> bool:
             and w.abs_reduction_C >= WARMING_MIN_ABS_C)
 
 
+MIN_REFERENCE_SAMPLES = 5  # readings before the first pulse that reference a thermistor
+
+
+def rise_residual(data: Prepared, pred: Prediction) -> np.ndarray:
+    """(M, 3) thermistor residual of a model, each channel referenced to its own mean before
+    the first pulse of its recording (``Prepared.before_first_pulse``; the channel's mean over
+    the dataset's such readings where a recording has too few; as read where no recording has
+    any): the misfit of the temperature *rise*. A thermistor's constant offset -- a few tenths of a degree for an NTC at 25 C, and
+    the same in both independent rigs -- and a room that drifts between recordings are not a
+    warming, yet left in they can be most of an unpowered spring's residual and hide one."""
+    e = data.meas_T - pred.T
+    quiet = data.before_first_pulse[:, None] & np.isfinite(e)
+    n_all = quiet.sum(axis=0)
+    mean_all = np.where(n_all > 0, np.where(quiet, e, 0.0).sum(axis=0) / np.maximum(n_all, 1), 0.0)
+    for rows in data.rec_slices():
+        q = quiet[rows]
+        n = q.sum(axis=0)
+        ref = np.where(n >= MIN_REFERENCE_SAMPLES,
+                       np.where(q, e[rows], 0.0).sum(axis=0) / np.maximum(n, 1), mean_all)
+        e[rows] -= ref
+    return e
+
+
 def warming_compare(data: Prepared, before: Prediction, after: Prediction,
                     mask: np.ndarray) -> Warming | None:
-    """The cold neighbours' held-out thermistor residual of two fitted models (None: no
-    thermistors, or no cold neighbour among the held-out samples)."""
+    """The cold neighbours' held-out thermistor residual of two fitted models, each referenced
+    to its reading before the first pulse (``rise_residual``) (None: no thermistors, or no
+    cold neighbour among the held-out samples)."""
     cold = data.cold_neighbours
     if cold is None:
         return None
     sel = cold & mask[:, None]
     if sel.sum() < 10:
         return None
-    e0 = np.where(sel, data.meas_T - before.T, 0.0)
-    e1 = np.where(sel, data.meas_T - after.T, 0.0)
+    e0 = np.where(sel, rise_residual(data, before), 0.0)
+    e1 = np.where(sel, rise_residual(data, after), 0.0)
     n_eff = 0.0
     for r in np.unique(data.fit_rec[mask]):
         rows = data.fit_rec == r

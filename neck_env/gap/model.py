@@ -384,6 +384,17 @@ class Prepared:
             out[rows] = ~on & other
         return out & np.isfinite(self.meas_T)
 
+    @cached_property
+    def before_first_pulse(self) -> np.ndarray:
+        """(M,) fit-rate samples before any muscle has been powered in their recording: every
+        spring is at ambient there in any model, with or without an effect, so a thermistor's
+        reading there is its offset (and the room) alone."""
+        out = np.zeros(self.fit_rec.size, bool)
+        for r, rows in enumerate(self.rec_slices()):
+            on = np.maximum.accumulate((self.cmd[r] > 0).any(axis=1))[self.fit_idx[rows]]
+            out[rows] = ~on
+        return out
+
 
 def _sample_map(t_rel: np.ndarray, n_steps: int):
     """Grid step below each sample time and the interpolation weight of the step above."""

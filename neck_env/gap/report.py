@@ -210,9 +210,11 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                             f"{', '.join(D.WARMING_EFFECTS)} with thermistors: the held-out "
                             f"temperature residual of the springs not yet powered in their "
                             f"recording while a neighbour has been (only heat from a neighbour "
-                            f"warms them) falls by the F test at level {D.ALPHA}, by >= "
+                            f"warms them), each thermistor read from its mean before the "
+                            f"first pulse of its recording (an offset is not a warming), falls "
+                            f"by the F test at level {D.ALPHA}, by >= "
                             f"{D.WARMING_MIN_REL:.0%} and >= {D.WARMING_MIN_ABS_C} C, with the "
-                            f"held-out tilt gap no worse",
+                            f"held-out tilt gap not significantly worse (the F test turned round)",
             "unexplained": f"systematic (3 s smoothed) held-out residual of the final model > "
                            f"max({D.UNEXPLAINED_ABS_DEG} deg, {D.UNEXPLAINED_REL:.0%} of the RMS "
                            f"measured tilt), or the tilt read at rest moving through the dataset "
