@@ -216,6 +216,7 @@ def test_the_neighbours_warming_is_read_from_each_thermistors_own_zero():
     true_T[:n, 2] += warm
     offsets = np.array([0.6, -0.5, 0.8])
     data.meas_T = true_T + offsets
+    data.powered_so_far = Prepared.powered_so_far.func(data)
     data.before_first_pulse = Prepared.before_first_pulse.func(data)
     data.cold_neighbours = Prepared.cold_neighbours.func(data)
     assert data.before_first_pulse[:n].sum() == 20 and not data.before_first_pulse[n:].any()

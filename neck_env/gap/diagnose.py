@@ -398,9 +398,10 @@ def rise_residual(data: Prepared, pred: Prediction) -> np.ndarray:
     """(M, 3) thermistor residual of a model, each channel referenced to its own mean before
     the first pulse of its recording (``Prepared.before_first_pulse``; the channel's mean over
     the dataset's such readings where a recording has too few; as read where no recording has
-    any): the misfit of the temperature *rise*. A thermistor's constant offset -- a few tenths of a degree for an NTC at 25 C, and
-    the same in both independent rigs -- and a room that drifts between recordings are not a
-    warming, yet left in they can be most of an unpowered spring's residual and hide one."""
+    any): the misfit of the temperature *rise*. A thermistor's constant offset (a few tenths
+    of a degree for an NTC at 25 C; both rigs written apart carry one) and a room that drifts
+    between recordings are not a warming, yet left in they can be most of an unpowered
+    spring's residual and hide one."""
     e = data.meas_T - pred.T
     quiet = data.before_first_pulse[:, None] & np.isfinite(e)
     n_all = quiet.sum(axis=0)

@@ -377,22 +377,24 @@ class Prepared:
         model reads it."""
         if self.meas_T is None:
             return None
-        out = np.zeros((self.fit_rec.size, 3), bool)
-        for r, rows in enumerate(self.rec_slices()):
-            on = np.maximum.accumulate(self.cmd[r] > 0, axis=0)[self.fit_idx[rows]]  # powered so far
-            other = np.stack([np.delete(on, m, axis=1).any(axis=1) for m in range(3)], axis=1)
-            out[rows] = ~on & other
-        return out & np.isfinite(self.meas_T)
+        on = self.powered_so_far
+        other = np.stack([np.delete(on, m, axis=1).any(axis=1) for m in range(3)], axis=1)
+        return ~on & other & np.isfinite(self.meas_T)
 
     @cached_property
     def before_first_pulse(self) -> np.ndarray:
         """(M,) fit-rate samples before any muscle has been powered in their recording: every
         spring is at ambient there in any model, with or without an effect, so a thermistor's
         reading there is its offset (and the room) alone."""
-        out = np.zeros(self.fit_rec.size, bool)
+        return ~self.powered_so_far.any(axis=1)
+
+    @cached_property
+    def powered_so_far(self) -> np.ndarray:
+        """(M, 3) fit-rate samples x muscles: the muscle has been commanded on at or before
+        the sample in its recording."""
+        out = np.zeros((self.fit_rec.size, 3), bool)
         for r, rows in enumerate(self.rec_slices()):
-            on = np.maximum.accumulate((self.cmd[r] > 0).any(axis=1))[self.fit_idx[rows]]
-            out[rows] = ~on
+            out[rows] = np.maximum.accumulate(self.cmd[r] > 0, axis=0)[self.fit_idx[rows]]
         return out
 
 
