@@ -404,14 +404,14 @@ def rise_residual(data: Prepared, pred: Prediction) -> np.ndarray:
     spring's residual and hide one."""
     e = data.meas_T - pred.T
     quiet = data.before_first_pulse[:, None] & np.isfinite(e)
-    n_all = quiet.sum(axis=0)
-    mean_all = np.where(n_all > 0, np.where(quiet, e, 0.0).sum(axis=0) / np.maximum(n_all, 1), 0.0)
-    for rows in data.rec_slices():
-        q = quiet[rows]
+
+    def channel_mean(q: np.ndarray, x: np.ndarray, enough: int, otherwise) -> np.ndarray:
         n = q.sum(axis=0)
-        ref = np.where(n >= MIN_REFERENCE_SAMPLES,
-                       np.where(q, e[rows], 0.0).sum(axis=0) / np.maximum(n, 1), mean_all)
-        e[rows] -= ref
+        return np.where(n >= enough, np.where(q, x, 0.0).sum(axis=0) / np.maximum(n, 1), otherwise)
+
+    whole = channel_mean(quiet, e, 1, 0.0)
+    for rows in data.rec_slices():
+        e[rows] -= channel_mean(quiet[rows], e[rows], MIN_REFERENCE_SAMPLES, whole)
     return e
 
 
