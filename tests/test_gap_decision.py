@@ -10,11 +10,15 @@ import pytest
 
 from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEXPLAINED_REST_DEG,
                                    WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
-                                   _convection, _cooling_time_constant, _draft_rebalanced,
+                                   CREEP_SHARES, CREEP_STARTS, _convection,
+                                   _cooling_time_constant,
+                                   _creep_rebalanced, _draft_rebalanced, _scan_values,
                                    choose_holdout, f_crit, fast_power, responsible, rest_moves,
-                                   significant, structure_reason, warms)
-from neck_env.gap.model import Model, nominal_specs, wire_ratios
+                                   scan_all_starts, significant, structure_reason, warms)
+from neck_env.effects import apply_to_constants
+from neck_env.gap.model import EFFECT_SPECS, Model, nominal_specs, wire_ratios
 from neck_env.params import default_params
+from neck_env.physics.layout import K_BEND, VISCO_K
 from neck_env.physics.plant import (HA, HEAT_CAP, LATENT_K, R_A, R_M,
                                    constants_from_params, cooling_time_constant_s)
 
@@ -287,6 +291,59 @@ def test_a_scanned_draft_splits_the_compromise_h_into_before_and_after():
     plain = {DRAFT_FROM: float(n), "convection_change.tcoef_per_K": 0.004}
     assert _draft_rebalanced(plain, {"h_scale": h_c}, n) == plain
     assert "h_scale" not in _draft_rebalanced({DRAFT_FROM: 3.0}, {}, n)
+
+
+def test_a_scanned_creep_splits_the_compromise_stiffness_into_spring_and_branch():
+    ratio, ei_c = 1.5, 2.0
+    creep = {"backbone_viscoelasticity.stiffness_ratio": ratio, "backbone_viscoelasticity.tau_s": 3.0}
+    whole = _creep_rebalanced(creep, {"EI_scale": ei_c}, 1.0)
+    # in the plant's own terms: backbone + Maxwell branch at the start of a pulse is the
+    # compromise stiffness the baseline found without creep
+    p = default_params()
+    k_of = lambda scale: p.replace(backbone__bending_stiffness_Nm2=p.backbone.bending_stiffness_Nm2 * scale)
+    c_nom = constants_from_params(k_of(ei_c))
+    c_new = apply_to_constants(constants_from_params(k_of(whole["EI_scale"])),
+                               {"backbone_viscoelasticity": {"stiffness_ratio": ratio, "tau_s": 3.0}})
+    assert c_new[0, K_BEND] + c_new[0, VISCO_K] == pytest.approx(c_nom[0, K_BEND])
+    half = _creep_rebalanced(creep, {"EI_scale": ei_c}, 0.5)
+    assert half["EI_scale"] * (1 + 0.5 * ratio) == pytest.approx(ei_c)
+    # no split, no creep, or no EI in the baseline: unchanged
+    assert _creep_rebalanced(creep, {"EI_scale": ei_c}, 0.0) == creep
+    off = {**creep, "backbone_viscoelasticity.stiffness_ratio": 0.0}
+    assert _creep_rebalanced(off, {"EI_scale": ei_c}, 1.0) == off
+    assert _creep_rebalanced(creep, {}, 1.0) == creep
+    # the scan tries every grid point with each split
+    specs = EFFECT_SPECS["backbone_viscoelasticity"]
+    scan = _scan_values("backbone_viscoelasticity", specs, np.random.default_rng(0), 15,
+                        {"EI_scale": ei_c})
+    grid = {tuple(v[s.key] for s in specs) for v in scan}
+    assert len(scan) == len(grid) * len(CREEP_SHARES)
+    for point in grid:
+        eis = sorted(v.get("EI_scale", ei_c) for v in scan if tuple(v[s.key] for s in specs) == point)
+        assert eis == pytest.approx(sorted(ei_c / (1 + f * point[0]) for f in CREEP_SHARES))
+
+
+def test_creep_keeps_its_next_best_scan_points_as_starts():
+    # a fake rig whose cost is the distance of the creep branch from 2.5 (any other effect:
+    # flat): the scan's order decides which starts the fit gets
+    specs = nominal_specs(25.0, 1.0, False)
+    model = SimpleNamespace(nominal=specs, data=SimpleNamespace(n_rec=15),
+                            predict=lambda settings: settings)
+    cost = lambda st: [abs(st.get("backbone_viscoelasticity.stiffness_ratio", 0.0) - 2.5)
+                       + 0.1 * abs(st.get("EI_scale", 1.0) - 1.0)]
+    fitter = SimpleNamespace(data_res=lambda st: np.array(cost(st)))
+    base = {s.key: s.start for s in specs}
+    names = ["backbone_viscoelasticity", "head_payload"]
+    starts = scan_all_starts(model, fitter, base, [], names, np.random.default_rng(0))
+    creep = starts["backbone_viscoelasticity"]
+    assert len(creep) == CREEP_STARTS and len(starts["head_payload"]) == 1
+    scanned = _scan_values("backbone_viscoelasticity", EFFECT_SPECS["backbone_viscoelasticity"],
+                           np.random.default_rng(0), 15, base)
+    ranked = sorted(cost({**base, **v})[0] for v in scanned)
+    assert [cost({**base, **v})[0] for v in creep] == pytest.approx(ranked[:CREEP_STARTS])
+    # a single best start only, as before, where no profile is asked for
+    assert len(scan_all_starts(model, fitter, base, [], names, np.random.default_rng(0),
+                               profile=0)["backbone_viscoelasticity"]) == 1
 
 
 def test_a_steady_rest_drift_moves_the_rest_even_when_its_spread_is_small():

@@ -550,12 +550,17 @@ def _scan_values(name: str, specs: Sequence[ParamSpec], rng: np.random.Generator
     """Effect values to scan: the generic grid, and for a convection change its two forms --
     h growing with temperature, and a draft starting at a recording boundary (discrete, so
     scanned here and held fixed by the fit; each with its split of the baseline's h,
-    ``_draft_rebalanced``)."""
+    ``_draft_rebalanced``), and for creep each grid point with three splits of the baseline's
+    bending stiffness (``_creep_rebalanced``)."""
     if name == "supply_limit":
         # the limit binds only below ~ 8 A x R_load (~6-8 V): above that the cost is flat, so
         # a coarse log grid over 1.5-40 V would leave the fit stranded at "off"
         return [{"supply_limit.compliance_V": v} for v in
                 (2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, SUPPLY_OFF_V)]
+    if name == "backbone_viscoelasticity":
+        return [_creep_rebalanced({s.key: s.from_unit(float(x)) for s, x in zip(specs, u)},
+                                  base_values, share)
+                for u in scan_points(specs, rng) for share in CREEP_SHARES]
     if name != "convection_change":
         return [{s.key: s.from_unit(float(x)) for s, x in zip(specs, u)}
                 for u in scan_points(specs, rng)]
@@ -587,6 +592,29 @@ def _draft_rebalanced(vals: dict[str, float], base_values: dict[str, float],
     g = vals.get("convection_change.gain", 1.0)
     k = max(int(round(first)), 0)
     return {**vals, "h_scale": base_values["h_scale"] * n_rec / (k + g * (n_rec - k))}
+
+
+# How much of a creep branch's stiffness the baseline's compromise EI already holds: none (the
+# branch adds to it), half (it relaxes during a pulse), all (the compromise is the fast one).
+CREEP_SHARES = (0.0, 0.5, 1.0)
+CREEP_STARTS = 3  # creep's best scan points each fitted (``scan_all_starts``, ``_profiled``)
+
+
+def _creep_rebalanced(vals: dict[str, float], base_values: dict[str, float],
+                      share: float) -> dict[str, float]:
+    """A creep start with the baseline's bending stiffness split into the spring that stays and
+    the branch that relaxes: EI / (1 + share x stiffness_ratio).
+
+    A baseline refitted without creep has a compromise EI between the fast (EI (1 + ratio))
+    and the settled (EI) stiffness of the rig. A creep branch scanned on top of that
+    compromise makes the backbone stiffer still, every start costs more than none, and the fit
+    slides to "off" (independent rig 5026, ratio 1.73 true: fitted 0, the baseline's EI at
+    x7.2; started from the split the fitting cost halved, ratio 1.14, tau 4.3 s for 3.6 s) --
+    the draft's trade with h (``_draft_rebalanced``) in the backbone."""
+    ratio = vals.get("backbone_viscoelasticity.stiffness_ratio", 0.0)
+    if share <= 0.0 or ratio <= 0.0 or "EI_scale" not in base_values:
+        return vals
+    return {**vals, "EI_scale": base_values["EI_scale"] / (1.0 + share * ratio)}
 
 
 def settle_draft(model: Model, cand: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray) -> None:
@@ -655,13 +683,14 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
                     base_effects: list[str], names: Sequence[str], rng: np.random.Generator,
                     profile: int = DRAFT_PROFILE) -> dict[str, list[dict[str, float]]]:
     """``scan_starts``, best first, and for a convection change also the best scanned draft up
-    (gain > 1) and down at each of ``profile`` starts spread over the dataset, for
-    ``_profiled`` to fit. A draft's start is discrete and the fit cannot move it. Judged by one
-    evaluation on the baseline refitted without it -- a compromise in h, C_A, EI and the
-    transformation temperatures, far from either side of the draft -- the scan can rank every
-    right start below a wrong one (own wide suite, a x2 draft from recording 7: the scan chose
-    a weakening from recording 14; fitted from recordings 5-8 the cost fell 20-fold and the
-    held-out gap from 0.64 to 0.07-0.09 deg)."""
+    (gain > 1) and down at each of ``profile`` starts spread over the dataset, for creep its
+    next best scan points (``CREEP_STARTS``), for ``_profiled`` to fit. A draft's start is
+    discrete and the fit cannot move it. Judged by one evaluation on the baseline refitted
+    without it -- a compromise in h, C_A, EI and the transformation temperatures, far from
+    either side of the draft -- the scan can rank every right start below a wrong one (own
+    wide suite, a x2 draft from recording 7: the scan chose a weakening from recording 14;
+    fitted from recordings 5-8 the cost fell 20-fold and the held-out gap from 0.64 to
+    0.07-0.09 deg)."""
     settings, owners = [], []
     for name in names:
         specs = EFFECT_SPECS[name]
@@ -676,15 +705,25 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
     preds = model.predict(settings)
     best: dict[str, tuple[float, dict]] = {}
     by_start: dict[tuple, tuple[float, dict]] = {}  # (effect, draft start, up): best scanned
+    creep: list[tuple[float, dict]] = []
     for (name, vals), p in zip(owners, preds):
         cost = float(np.mean(fitter.data_res(p) ** 2))
         if name not in best or cost < best[name][0]:
             best[name] = (cost, vals)
+        if name == "backbone_viscoelasticity":
+            creep.append((cost, vals))
         if profile and DRAFT_FROM in vals and vals[DRAFT_FROM] < model.data.n_rec:
             key = (name, int(vals[DRAFT_FROM]), vals.get("convection_change.gain", 1.0) > 1.0)
             if key not in by_start or cost < by_start[key][0]:
                 by_start[key] = (cost, vals)
     out = {n: [v] for n, (c, v) in best.items()}
+    if profile and creep:
+        # creep's scan points lie in two basins (the branch on, the baseline's EI split; or
+        # off): the best scanned can slide to "off" where the next ones reach the branch
+        # (independent rig 5017, ratio 2.6 true: from the best scan point 0, from the second
+        # 2.5 and half the fitting cost). The next best are fitted briefly too (``_profiled``)
+        creep.sort(key=lambda cv: cv[0])
+        out["backbone_viscoelasticity"] += [v for _, v in creep[1:CREEP_STARTS]]
     R = model.data.n_rec
     if profile and R >= 3:
         firsts = sorted({int(round(x)) for x in np.linspace(1, R - 1, min(profile, R - 1))})
