@@ -557,13 +557,12 @@ def _scan_values(name: str, specs: Sequence[ParamSpec], rng: np.random.Generator
         # a coarse log grid over 1.5-40 V would leave the fit stranded at "off"
         return [{"supply_limit.compliance_V": v} for v in
                 (2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 6.5, 7.0, SUPPLY_OFF_V)]
-    if name == "backbone_viscoelasticity":
-        return [_creep_rebalanced({s.key: s.from_unit(float(x)) for s, x in zip(specs, u)},
-                                  base_values, share)
-                for u in scan_points(specs, rng) for share in CREEP_SHARES]
     if name != "convection_change":
-        return [{s.key: s.from_unit(float(x)) for s, x in zip(specs, u)}
+        grid = [{s.key: s.from_unit(float(x)) for s, x in zip(specs, u)}
                 for u in scan_points(specs, rng)]
+        if name == "backbone_viscoelasticity":
+            return [_creep_rebalanced(v, base_values, share) for v in grid for share in CREEP_SHARES]
+        return grid
     out = [{"convection_change.tcoef_per_K": k, "convection_change.gain": 1.0,
             DRAFT_FROM: float(n_rec)} for k in (0.0, 0.004, 0.008, 0.012)]
     if n_rec >= 3:
@@ -598,6 +597,11 @@ def _draft_rebalanced(vals: dict[str, float], base_values: dict[str, float],
 # branch adds to it), half (it relaxes during a pulse), all (the compromise is the fast one).
 CREEP_SHARES = (0.0, 0.5, 1.0)
 CREEP_STARTS = 3  # creep's best scan points each fitted (``scan_all_starts``, ``_profiled``)
+# Scan points fitted per effect where the scan's best can lie in the wrong basin (1 elsewhere):
+# creep's points lie in two basins (the branch on, the baseline's EI split; or off), and the
+# best scanned can slide to "off" where the next ones reach the branch (independent rig 5017,
+# ratio 2.6 true: from the best scan point 0, from the second 2.5 and half the fitting cost)
+SCAN_STARTS = {"backbone_viscoelasticity": CREEP_STARTS}
 
 
 def _creep_rebalanced(vals: dict[str, float], base_values: dict[str, float],
@@ -684,7 +688,7 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
                     profile: int = DRAFT_PROFILE) -> dict[str, list[dict[str, float]]]:
     """``scan_starts``, best first, and for a convection change also the best scanned draft up
     (gain > 1) and down at each of ``profile`` starts spread over the dataset, for creep its
-    next best scan points (``CREEP_STARTS``), for ``_profiled`` to fit. A draft's start is
+    next best scan points (``SCAN_STARTS``), for ``_profiled`` to fit. A draft's start is
     discrete and the fit cannot move it. Judged by one evaluation on the baseline refitted
     without it -- a compromise in h, C_A, EI and the transformation temperatures, far from
     either side of the draft -- the scan can rank every right start below a wrong one (own
@@ -703,27 +707,19 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
             settings.append(st)
             owners.append((name, vals))
     preds = model.predict(settings)
-    best: dict[str, tuple[float, dict]] = {}
+    scanned: dict[str, list[tuple[float, dict]]] = {}
     by_start: dict[tuple, tuple[float, dict]] = {}  # (effect, draft start, up): best scanned
-    creep: list[tuple[float, dict]] = []
     for (name, vals), p in zip(owners, preds):
         cost = float(np.mean(fitter.data_res(p) ** 2))
-        if name not in best or cost < best[name][0]:
-            best[name] = (cost, vals)
-        if name == "backbone_viscoelasticity":
-            creep.append((cost, vals))
+        scanned.setdefault(name, []).append((cost, vals))
         if profile and DRAFT_FROM in vals and vals[DRAFT_FROM] < model.data.n_rec:
             key = (name, int(vals[DRAFT_FROM]), vals.get("convection_change.gain", 1.0) > 1.0)
             if key not in by_start or cost < by_start[key][0]:
                 by_start[key] = (cost, vals)
-    out = {n: [v] for n, (c, v) in best.items()}
-    if profile and creep:
-        # creep's scan points lie in two basins (the branch on, the baseline's EI split; or
-        # off): the best scanned can slide to "off" where the next ones reach the branch
-        # (independent rig 5017, ratio 2.6 true: from the best scan point 0, from the second
-        # 2.5 and half the fitting cost). The next best are fitted briefly too (``_profiled``)
-        creep.sort(key=lambda cv: cv[0])
-        out["backbone_viscoelasticity"] += [v for _, v in creep[1:CREEP_STARTS]]
+    out = {}
+    for n, cv in scanned.items():
+        cv.sort(key=lambda c: c[0])  # best first; stable: of equal costs the first scanned
+        out[n] = [v for _, v in cv[:SCAN_STARTS.get(n, 1) if profile else 1]]
     R = model.data.n_rec
     if profile and R >= 3:
         firsts = sorted({int(round(x)) for x in np.linspace(1, R - 1, min(profile, R - 1))})

@@ -378,7 +378,7 @@ class Prepared:
         if self.meas_T is None:
             return None
         on = self.powered_so_far
-        other = np.stack([np.delete(on, m, axis=1).any(axis=1) for m in range(3)], axis=1)
+        other = on.sum(axis=1, keepdims=True) - on > 0  # another muscle powered so far
         return ~on & other & np.isfinite(self.meas_T)
 
     @cached_property
