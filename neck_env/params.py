@@ -137,12 +137,20 @@ class Thermal:
 
     convection_W_m2K: float = 60.0  # effective h_T over the wire surface
     ambient_C: float = 25.0
+    # Heat a spring drains into its muscle's terminals (crimps, anchor posts): a second, slower
+    # thermal mass per muscle that sheds to the air. 0 W/K is none, as calibrated: Table 1 is
+    # heating-only data and cannot see it; a rig's cooling tails can (neck_env.gap fits it).
+    terminal_conductance_W_K: float = 0.0  # one spring <-> its muscle's terminals
+    terminal_heat_capacity_J_K: float = 1.5  # one muscle's terminals
+    terminal_loss_W_K: float = 0.03  # one muscle's terminals -> air
 
     def __post_init__(self) -> None:
-        _positive(self, "thermal", "convection_W_m2K")
-        _finite(self, "thermal", "ambient_C")
+        _positive(self, "thermal", "convection_W_m2K", "terminal_heat_capacity_J_K")
+        _finite(self, "thermal", "ambient_C", "terminal_conductance_W_K", "terminal_loss_W_K")
         _require(-40 <= self.ambient_C <= 60, "thermal", "ambient_C", self.ambient_C,
                  "must lie in [-40, 60] deg C")
+        for name in ("terminal_conductance_W_K", "terminal_loss_W_K"):
+            _require(getattr(self, name) >= 0, "thermal", name, getattr(self, name), "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -225,6 +233,9 @@ _BASE_PROVENANCE = {
     "material.resistivity_austenite_ohm_m": "datasheet: 82 uOhm cm",
     "thermal.convection_W_m2K": "assumed: still air around a fine wire",
     "thermal.ambient_C": "paper: experiments at room temperature",
+    "thermal.terminal_conductance_W_K": "assumed: no heat path to the terminals (Table 1 cannot see one)",
+    "thermal.terminal_heat_capacity_J_K": "assumed: brass crimps and a printed post, ~1.5 J/K",
+    "thermal.terminal_loss_W_K": "assumed: a few cm^2 of terminal in still air",
     "backbone.length_m": "assumed",
     "backbone.bending_stiffness_Nm2": "assumed: serrated TPU",
     "backbone.torsional_stiffness_Nm2": "assumed: serrated TPU",

@@ -144,6 +144,64 @@ def test_cooling_tail_decays_with_the_wire_time_constant(params, pc):
     assert -1 / slope == pytest.approx(tau, rel=0.02)
 
 
+def _terminal_run(params, amps, seconds, dt=0.01):
+    c = constants_from_params(params)
+    x = initial_state(c, 1)
+    cur = np.zeros((int(round(seconds / dt)), 1, 3))
+    cur[:, 0, 0] = amps
+    rows = []
+    for k in range(cur.shape[0]):
+        x, out, _ = step(c, x, cur[k], dt)
+        rows.append((out[0, L.O_ENERGY], x[0, L.S_T], x[0, L.S_TERM], x[0, L.S_XI]))
+    return c, np.array(rows)
+
+
+def test_terminals_settle_where_the_two_heat_paths_balance(params):
+    # constant power P into a spring: P = hA dT_w + G (dT_w - dT_t) and 2 G (dT_w - dT_t) =
+    # L dT_t, so dT_w = P / (hA + G L / (2 G + L)) and dT_t = 2 G dT_w / (2 G + L)
+    G, Lt = 0.02, 0.01
+    p = params.replace(thermal__terminal_conductance_W_K=G, thermal__terminal_loss_W_K=Lt,
+                       thermal__terminal_heat_capacity_J_K=0.2)  # settles within seconds
+    c, rows = _terminal_run(p, 2.0, 300.0)  # stays martensite: no latent heat, fixed R
+    assert np.all(rows[:, 3] == 1.0)
+    P = rows[-1, 0] / 0.01 / 2  # W into one spring over the last step
+    amb = p.thermal.ambient_C
+    dTw = P / (c[0, L.HA] + G * Lt / (2 * G + Lt))
+    assert rows[-1, 1] - amb == pytest.approx(dTw, rel=1e-3)
+    assert rows[-1, 2] - amb == pytest.approx(2 * G / (2 * G + Lt) * dTw, rel=1e-3)
+    # and the spring runs cooler than without the path, by the conductance it adds
+    _, bare = _terminal_run(params, 2.0, 300.0)
+    assert rows[-1, 1] < bare[-1, 1] - 1.0
+
+
+def test_terminals_balance_the_energy_of_a_pulse(params):
+    dt = 0.01
+    p = params.replace(thermal__terminal_conductance_W_K=0.015, thermal__terminal_loss_W_K=0.012,
+                       thermal__terminal_heat_capacity_J_K=1.5)
+    c, rows = _terminal_run(p, np.r_[np.full(500, 7.0), np.zeros(2500)], 30.0, dt)
+    amb = p.thermal.ambient_C
+    Tw = np.r_[amb, rows[:, 1]]
+    Tt = np.r_[amb, rows[:, 2]]
+    xi = np.r_[1.0, rows[:, 3]]
+    heat_in = rows[:, 0].sum()  # both springs
+    springs = 2 * (c[0, L.HEAT_CAP] * (Tw[-1] - Tw[0]) + c[0, L.HA] * np.trapezoid(Tw - amb, dx=dt)
+                   - c[0, L.LATENT_J] * (xi[-1] - xi[0]))
+    terminals = c[0, L.TERM_C] * (Tt[-1] - Tt[0]) + c[0, L.TERM_LOSS] * np.trapezoid(Tt - amb, dx=dt)
+    assert xi[1:].min() < 0.9, "the pulse must transform so latent heat is in the balance"
+    assert Tt.max() - amb > 3.0, "the terminals must take a share worth testing"
+    assert springs + terminals == pytest.approx(heat_in, rel=0.01)
+
+
+def test_no_terminal_conductance_is_the_model_without_terminals(params):
+    # with G = 0 neither the terminals' heat capacity nor their loss may reach the springs
+    _, bare = _terminal_run(params, np.r_[np.full(500, 7.0), np.zeros(1000)], 15.0)
+    _, other = _terminal_run(params.replace(thermal__terminal_heat_capacity_J_K=0.01,
+                                            thermal__terminal_loss_W_K=5.0),
+                             np.r_[np.full(500, 7.0), np.zeros(1000)], 15.0)
+    assert np.array_equal(bare, other)
+    assert np.all(bare[:, 2] == params.thermal.ambient_C)
+
+
 # --- Backbone kinematics --------------------------------------------------------------------
 
 def test_tip_position_matches_eq6():

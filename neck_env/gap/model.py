@@ -17,6 +17,8 @@ multipliers / shifts of the defaults so that 1 / 0 is "as calibrated":
 * ``EM_scale``      martensite modulus x (the cold springs' rate; with ``spring_modulus``)
 * ``R_scale``, ``heat_capacity_scale``, ``width_scale``, ``hysteresis_shift_C``  resistance,
   heat capacity, width of the transformation bands x; martensite temperatures shifted, C
+* ``terminal_share``, ``terminal_tau_s``  heat a spring drains into its muscle's terminals
+  (conductance as a share of its h A) and their time constant
 * ``ambient_C``     room temperature (from meta.json / thermistors when known)
 * ``thermistor_lag_s``  time constant of the thermistors behind their springs (with T1..T3)
 * ``offset_x_deg``, ``offset_y_deg``  sensor zero offset of the tilt vector (accelerometer
@@ -142,6 +144,15 @@ def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
         ParamSpec("heat_capacity_scale", 0.7 * c_c, 1.4 * c_c, c_c, "plant", log=True,
                   prior_sigma=0.12, doc="spring heat capacity multiplier (specific heat)",
                   default=1.0),
+        # heat drained into the muscle's terminals (crimps, posts): a second, slower thermal
+        # mass, which makes a cooling tail fast at first and slow later. A rig's conductance
+        # there is its own; without it a fitted h takes the terminals' share (a rig that
+        # drains a quarter of its heat there read h 20-80 % high)
+        ParamSpec("terminal_share", 0.0, 2.0, 0.0, "plant", prior_sigma=0.5,
+                  doc="conductance of a spring to its terminals, as a share of its h A"),
+        ParamSpec("terminal_tau_s", 5.0, 300.0, 40.0, "plant", log=True, prior_sigma=1.0,
+                  doc="time constant of the terminals (they shed to the air what their two "
+                      "springs give them at half the springs' rise), s"),
         ParamSpec("width_scale", 0.1, 3.0, 1.0, "plant", log=True, prior_sigma=0.5,
                   doc="width of the transformation bands (Af - As, Ms - Mf) multiplier"),
         ParamSpec("hysteresis_shift_C", -15.0, 15.0, 0.0, "plant", prior_sigma=6.0,
@@ -543,9 +554,21 @@ class Model:
         wa = (m.Af_C - m.As_C) * s("width_scale", 1.0)
         wm = (m.Ms_C - m.Mf_C) * s("width_scale", 1.0)
         hy = s("hysteresis_shift_C", 0.0)
+        h = b.thermal.convection_W_m2K * s("h_scale", 1.0)
+        th = b.thermal
+        terminal = {}
+        if "terminal_share" in setting:
+            # conductance G = share x h A; the terminals lose 2 G to the air (so they settle
+            # at half their springs' rise) and hold tau x (2 G + 2 G) of heat
+            g = s("terminal_share", 0.0) * h * math.pi * b.spring.wire_diameter_m * b.spring.wire_length_m
+            terminal = dict(thermal__terminal_conductance_W_K=g,
+                            thermal__terminal_loss_W_K=2.0 * g if g > 0 else th.terminal_loss_W_K,
+                            thermal__terminal_heat_capacity_J_K=(4.0 * g * s("terminal_tau_s", 40.0)
+                                                                 if g > 0 else th.terminal_heat_capacity_J_K))
         return b.replace(
             source=source,
-            thermal__convection_W_m2K=b.thermal.convection_W_m2K * s("h_scale", 1.0),
+            **terminal,
+            thermal__convection_W_m2K=h,
             thermal__ambient_C=s("ambient_C", self.data.ambient),
             material__As_C=m.As_C + shift, material__Af_C=m.As_C + shift + wa,
             material__Ms_C=m.Ms_C + shift + hy, material__Mf_C=m.Ms_C + shift + hy - wm,

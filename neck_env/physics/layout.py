@@ -64,7 +64,11 @@ INV_BAND_A = 67  # 1 / (A_f - A_s), 1/K
 INV_BAND_M = 68  # 1 / (M_s - M_f)
 # --- constants: safety --------------------------------------------------------------------------
 CUTOFF_C = 69  # spring temperature at which a muscle's current is cut (inf = no cut), deg C
-N_CONST = 70
+# --- constants: heat drained into each muscle's terminals (crimps, anchor posts) -------------
+TERM_G = 70  # conductance of one spring to its muscle's terminals, W/K (0 = no terminal path)
+TERM_C = 71  # heat capacity of one muscle's terminals, J/K
+TERM_LOSS = 72  # their loss to the air, W/K
+N_CONST = 73
 
 # --- state ----------------------------------------------------------------------------------
 S_T = 0  # 0..2: spring temperature per muscle, deg C
@@ -74,7 +78,8 @@ S_SCALE = 9  # 9..11: branch scale through the last reversal point
 S_Q = 12  # 12..14: b_x, b_y (rad), twist eps (rad)
 S_VISCO = 15  # 15..17: Maxwell-branch moment on b_x, b_y, eps, N m
 S_FATIGUE = 18  # 18..20: fractional loss of recoverable strain per muscle
-N_STATE = 21
+S_TERM = 21  # 21..23: temperature of each muscle's terminals, deg C
+N_STATE = 24
 
 # --- outputs of one step --------------------------------------------------------------------
 O_THETA = 0  # deg
@@ -83,5 +88,5 @@ O_POWER = 2  # 2..4: mean electrical power per muscle over the step (both spring
 O_ENERGY = 5  # 5..7: electrical energy per muscle in the step, J
 O_CURRENT = 8  # 8..10: mean current that flowed per muscle, A
 O_FORCE = 11  # 11..13: tendon force magnitude at the end of the step, N
-O_CONV = 14  # 14..16: mean convective heat loss per muscle over the step (both springs), W
+O_CONV = 14  # 14..16: mean heat loss per muscle over the step (both springs; air and terminals), W
 N_OUT = 17

@@ -17,8 +17,9 @@ springs' stiffness: ``q += (1 - exp(-dt K_eff / c)) Q / K_eff``. The fixed point
 quasi-static balance and the step is stable for any dt.
 
 Order within a step: spring extensions from the current pose -> currents (supply limit, energy
-budget) -> thermal/phase update per muscle (Joule heat, convection, latent heat and stress
-solved together) -> spring forces -> pose update.
+budget) -> thermal/phase update per muscle (Joule heat, convection, heat drained into the
+muscle's terminals, latent heat and stress solved together; then the terminals) -> spring
+forces -> pose update.
 
 Energy budget: ``energy_left_J`` (N,) is debited by the electrical energy of every substep; a
 substep that would overdraw it has its currents scaled so that exactly the remainder is spent,
@@ -44,7 +45,8 @@ from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_GAIN, CONV_TCOEF, C
                      G_A, G_M, GAMMA_L, HA, HEAD_R, HEAT_CAP, K_BEND, K_TWIST, LATENT_J,
                      LATENT_K, LENGTH, LEVER_SQ, MF, MS, N_CONST, N_OUT, N_STATE, O_CONV,
                      O_CURRENT, O_ENERGY, O_FORCE, O_PHI, O_POWER, O_THETA, PAYLOAD_COM,
-                     PAYLOAD_MG, PSI, R_A, R_M, SIN_PSI, S_FATIGUE, S_HEAT, S_Q, S_SCALE, S_T, S_VISCO,
+                     PAYLOAD_MG, PSI, R_A, R_M, SIN_PSI, S_FATIGUE, S_HEAT, S_Q, S_SCALE, S_T, S_TERM,
+                     S_VISCO, TERM_C, TERM_G, TERM_LOSS,
                      S_XI, SHEAR_PER_EXT, SUPPLY_V, THETA_SHEAR, VISCO_K, VISCO_TAU, WIRING_R)
 from .muscles import anchor_geometry, generalized_forces, spring_geometry
 from .sma import phase_thermal_step, resistance, spring_force, spring_rate
@@ -105,6 +107,9 @@ def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarr
         row[CONV_GAIN], row[CONV_TCOEF] = 1.0, 0.0
         row[FATIGUE_RATE], row[FATIGUE_MAX] = 0.0, 0.0
         row[CUTOFF_C] = np.inf  # the physics has no cut; the envs and the rig set one
+        row[TERM_G] = p.thermal.terminal_conductance_W_K
+        row[TERM_C] = p.thermal.terminal_heat_capacity_J_K
+        row[TERM_LOSS] = p.thermal.terminal_loss_W_K
     refresh_derived(out)
     return out
 
@@ -133,6 +138,7 @@ def initial_state(consts: np.ndarray, n_rigs: int | None = None) -> np.ndarray:
         raise ValueError(f"constants are for {consts.shape[0]} rigs, state asked for {n}")
     x = np.zeros((n, N_STATE))
     x[:, S_T:S_T + 3] = np.broadcast_to(consts[:, AMBIENT:AMBIENT + 1], (n, 3))
+    x[:, S_TERM:S_TERM + 3] = x[:, S_T:S_T + 3]
     x[:, S_XI:S_XI + 3] = 1.0
     return x
 
@@ -199,15 +205,19 @@ def advance_rig(c, x, cur, dt, n_sub, budget, out, scratch):
                 amps[k] *= s
         budget = max(budget - min(e_sub, budget), 0.0)
         k_springs = 0.0
-        hA = max(c[HA] * c[CONV_GAIN], 1e-9)
+        # A terminal path adds its conductance to the air's and its excess temperature as a
+        # heat source: the spring then relaxes exactly toward the mix of both sinks.
+        hA = max(c[HA] * c[CONV_GAIN], 1e-9) + c[TERM_G]
         decay = math.exp(-dt * hA / c[HEAT_CAP])
         for k in range(3):
             coupling = 0.0
             for j in range(3):
                 coupling += temps[j] - temps[k]
             if c[CONV_TCOEF] != 0.0:
-                hA = max(c[HA] * c[CONV_GAIN] * (1.0 + c[CONV_TCOEF] * (temps[k] - c[AMBIENT])), 1e-9)
+                hA = (max(c[HA] * c[CONV_GAIN] * (1.0 + c[CONV_TCOEF] * (temps[k] - c[AMBIENT])), 1e-9)
+                      + c[TERM_G])
                 decay = math.exp(-dt * hA / c[HEAT_CAP])
+            extra = c[COUPLING] * coupling + c[TERM_G] * (x[S_TERM + k] - c[AMBIENT])
             # Fatigue: the recoverable strain lost stays in the wire as permanent set (it
             # lengthens the spring's free length), so the cold spring pulls as before and the
             # hot one less; strain that vanished instead would shorten the cold spring.
@@ -220,8 +230,14 @@ def advance_rig(c, x, cur, dt, n_sub, budget, out, scratch):
             xi_old = x[S_XI + k]
             T, xi, heating, scale, joule, conv = phase_thermal_step(
                 c, temps[k], xi_old, x[S_HEAT + k] > 0.5, x[S_SCALE + k], amps[k],
-                0.5 * (ext[k, 0] + ext[k, 1]), dt, c[COUPLING] * coupling, hA, decay, gamma_L)
+                0.5 * (ext[k, 0] + ext[k, 1]), dt, extra, hA, decay, gamma_L)
             x[S_T + k] = T
+            if c[TERM_G] > 0.0:
+                # the terminals relax toward the mix of their springs and the air (exact for
+                # the springs held at their new temperature over the step)
+                g_all = SPRINGS_PER_MUSCLE * c[TERM_G] + c[TERM_LOSS]
+                t_eq = (SPRINGS_PER_MUSCLE * c[TERM_G] * T + c[TERM_LOSS] * c[AMBIENT]) / g_all
+                x[S_TERM + k] = t_eq + (x[S_TERM + k] - t_eq) * math.exp(-dt * g_all / c[TERM_C])
             x[S_XI + k] = xi
             x[S_HEAT + k] = 1.0 if heating else 0.0
             x[S_SCALE + k] = scale
