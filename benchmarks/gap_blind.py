@@ -509,6 +509,9 @@ def main(argv=None) -> int:
     ap.add_argument("--fit-spring-modulus", action="store_true",
                     help="diagnose with neck-gap --fit-spring-modulus (the springs' martensite "
                     "modulus fitted as part of the baseline)")
+    ap.add_argument("--fit-terminals", action="store_true",
+                    help="diagnose with neck-gap --fit-terminals (the heat the springs drain into "
+                    "their terminals fitted as part of the baseline)")
     ap.add_argument("--effect-free", type=int, default=None, metavar="N",
                     help="instead of the suite: N effect-free rigs at consecutive seeds from "
                     "--first-seed (the false-positive rate with an interval narrow enough to "
@@ -537,8 +540,11 @@ def main(argv=None) -> int:
                              ("wire_meta", False if args.no_wire_meta else None))
            if v is not None}
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
-    if args.fit_spring_modulus:  # only when set: folders of earlier runs resume as they were
-        run_kwargs["options"] = ["--fit-spring-modulus"]
+    # only when set: folders of earlier runs resume as they were
+    options = [flag for flag, on in (("--fit-spring-modulus", args.fit_spring_modulus),
+                                     ("--fit-terminals", args.fit_terminals)) if on]
+    if options:
+        run_kwargs["options"] = options
     only = {int(x) for x in args.only.split(",")} if args.only else None
     if args.resume and not args.out:
         ap.error("--resume needs --out (the folder of the interrupted run)")

@@ -20,7 +20,8 @@ from neck_env.gap.cli import main as gap_main
 from neck_env.gap.model import tilt_vec
 from neck_env.gap.synthetic import generate
 from neck_env.params import default_params
-from neck_env.physics.plant import constants_from_params, simulate
+from neck_env.physics import layout as L
+from neck_env.physics.plant import constants_from_params, cooling_time_constant_s, simulate
 from neck_env.recording import read_dataset, write_meta, write_recording
 
 pytestmark = pytest.mark.slow
@@ -136,6 +137,30 @@ def test_stiffer_cold_springs_are_this_rigs_baseline_not_a_softer_backbone(tmp_p
     plain = _diagnose(ds, tmp_path, "plain")
     assert "EM_scale" not in plain["calibration"]["params"]
     assert 0.03 < plain["nominal"]["heldout_gap"] < 0.1, plain["nominal"]
+
+
+def test_heat_drained_into_the_terminals_is_this_rigs_baseline_not_a_higher_h(tmp_path):
+    """A rig whose springs lose heat to their crimps and posts as well as to the air (here half
+    as much again, into terminals of 1.5 J/K that shed 0.8 of it: not the model's own form of
+    the path, which sheds twice the conductance) cools fast while the terminals are cold and
+    slowly once they are warm. A single thermal node per spring can follow only the mix, and
+    its h came out that much too high; with the terminals in the baseline h is this rig's
+    convection and the path is fitted, identified and reported. Nothing is blamed."""
+    base = default_params()
+    hA = constants_from_params(base)[0, L.HA]
+    rig = base.replace(thermal__terminal_conductance_W_K=0.5 * hA,
+                       thermal__terminal_loss_W_K=0.4 * hA, thermal__terminal_heat_capacity_J_K=1.5)
+    plan = [([0], 6.0), ([1], 7.0), ([2], 5.0), ([0, 1], 6.5), ([1], 8.0), ([1, 2], 5.5),
+            ([2], 6.5), ([0], 4.5)]
+    ds = tmp_path / "terminals"
+    _write_pulses(ds, rig, plan, length_s=30.0, temperatures=True)
+    rep = _diagnose(ds, tmp_path, extra=["--fit-terminals"])
+    assert rep["verdict"] == [] and rep["unexplained"] is False
+    cal = rep["calibration"]
+    assert cal["params"]["h_scale"]["value"] == pytest.approx(1.0, rel=0.15), cal["params"]["h_scale"]
+    share = cal["params"]["terminal_share"]
+    assert 0.3 < share["value"] < 0.8 and share["identified"], share
+    assert cal["cooling_time_constant_s"]["value"] == pytest.approx(cooling_time_constant_s(base), rel=0.15)
 
 
 def test_paper_phi_offset_is_imu_misalignment(tmp_path):

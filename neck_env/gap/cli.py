@@ -33,6 +33,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="also fit the springs' martensite modulus (x0.25-5) as part of the "
                          "rig's baseline: for springs not wound or drawn as the paper's "
                          "(docs/gap.md, 'Springs not the paper's')")
+    ap.add_argument("--fit-terminals", action="store_true",
+                    help="also fit the heat the springs drain into their terminals (crimps, "
+                         "posts: a second, slower thermal mass) as part of the rig's baseline: "
+                         "for springs crimped to metal, when h must be the air's alone "
+                         "(docs/gap.md, 'Heat drained into the terminals')")
     add_wire_arguments(ap)
     args = ap.parse_args(argv)
     try:
@@ -64,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         dg = diagnose(without(ds, [b["recording"] for b in bent]), log=log,
-                      spring_modulus=args.fit_spring_modulus)
+                      spring_modulus=args.fit_spring_modulus, terminals=args.fit_terminals)
         rep = write_outputs(dg, args.json, dataset_path=Path(args.dataset),
                             make_plots=not args.no_plots, extra={"not_at_rest": bent})
     except RecordingError as exc:

@@ -927,6 +927,12 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
         derived["convection_W_m2K"] = _convection(fitter.model, params, tau)
         # the multiplier is the model's h on the model's wire: the data pin it no better than h
         params["h_scale"]["identified"] = derived["convection_W_m2K"]["identified"]
+        if "terminal_share" in params:
+            # a tail measured on the bench starts at this, while the terminals are still cold
+            share = params["terminal_share"]
+            derived["cooling_time_constant_cold_terminals_s"] = {
+                "value": tau["value"] / (1.0 + share["value"]), "identified": bool(share["identified"]),
+                "doc": "m c / (h A + G): a cooling tail's time constant while the terminals are cold, s"}
     for i in range(len(keys)):
         for j in range(i + 1, len(keys)):
             if abs(corr[i, j]) > 0.9:
@@ -1125,13 +1131,15 @@ class _Decision:
     ambiguous: list[dict]
 
 
-def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = False) -> Diagnosis:
+def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = False,
+             terminals: bool = False) -> Diagnosis:
     """Run the whole diagnosis on a dataset (see the module docstring): split, calibrate the
     baseline, attribute, decide, conclude. ``spring_modulus``: the baseline also fits the
-    martensite modulus (springs not the paper's; ``model.nominal_specs``)."""
+    martensite modulus (springs not the paper's); ``terminals``: the heat the springs drain
+    into their terminals (``model.nominal_specs``)."""
     t0 = time.perf_counter()
     data = prepare(ds)
-    model = Model(data, spring_modulus=spring_modulus)
+    model = Model(data, spring_modulus=spring_modulus, terminals=terminals)
     hold_rec, note = choose_holdout(ds)
     fit_mask, hold_mask = sample_masks(data, hold_rec)
     run = _Run(data=data, model=model, hold_rec=hold_rec, split_note=note, fit_mask=fit_mask,

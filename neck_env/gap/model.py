@@ -18,7 +18,7 @@ multipliers / shifts of the defaults so that 1 / 0 is "as calibrated":
 * ``R_scale``, ``heat_capacity_scale``, ``width_scale``, ``hysteresis_shift_C``  resistance,
   heat capacity, width of the transformation bands x; martensite temperatures shifted, C
 * ``terminal_share``, ``terminal_tau_s``  heat a spring drains into its muscle's terminals
-  (conductance as a share of its h A) and their time constant
+  (conductance as a share of its h A) and their time constant (with ``terminals``)
 * ``ambient_C``     room temperature (from meta.json / thermistors when known)
 * ``thermistor_lag_s``  time constant of the thermistors behind their springs (with T1..T3)
 * ``offset_x_deg``, ``offset_y_deg``  sensor zero offset of the tilt vector (accelerometer
@@ -96,7 +96,7 @@ class ParamSpec:
 
 def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
                   spring_modulus: bool = False, wire_diameter_ratio: float = 1.0,
-                  specific_heat_ratio: float = 1.0) -> list[ParamSpec]:
+                  specific_heat_ratio: float = 1.0, terminals: bool = False) -> list[ParamSpec]:
     """The rig's baseline: the calibrated model's parameters over physically plausible ranges.
 
     The bounds below are what a rig built to the paper could plausibly have, far wider than
@@ -144,15 +144,17 @@ def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
         ParamSpec("heat_capacity_scale", 0.7 * c_c, 1.4 * c_c, c_c, "plant", log=True,
                   prior_sigma=0.12, doc="spring heat capacity multiplier (specific heat)",
                   default=1.0),
-        # heat drained into the muscle's terminals (crimps, posts): a second, slower thermal
-        # mass, which makes a cooling tail fast at first and slow later. A rig's conductance
-        # there is its own; without it a fitted h takes the terminals' share (a rig that
-        # drains a quarter of its heat there read h 20-80 % high)
-        ParamSpec("terminal_share", 0.0, 2.0, 0.0, "plant", prior_sigma=0.5,
-                  doc="conductance of a spring to its terminals, as a share of its h A"),
-        ParamSpec("terminal_tau_s", 5.0, 300.0, 40.0, "plant", log=True, prior_sigma=1.0,
-                  doc="time constant of the terminals (they shed to the air what their two "
-                      "springs give them at half the springs' rise), s"),
+        # heat drained into the muscle's terminals (crimps, posts), on request (``neck-gap
+        # --fit-terminals``): a second, slower thermal mass, which makes a cooling tail fast at
+        # first and slow later; without it a fitted h takes the terminals' share (the third
+        # rig's effect-free h read 2-82 % high). Off by default: it costs single effects
+        # (docs/gap.md, "Heat drained into the terminals")
+        *([ParamSpec("terminal_share", 0.0, 2.0, 0.0, "plant", prior_sigma=0.5,
+                     doc="conductance of a spring to its terminals, as a share of its h A"),
+           ParamSpec("terminal_tau_s", 5.0, 300.0, 40.0, "plant", log=True, prior_sigma=1.0,
+                     doc="time constant of the terminals (they shed to the air what their two "
+                         "springs give them at half the springs' rise), s")]
+          if terminals else []),
         ParamSpec("width_scale", 0.1, 3.0, 1.0, "plant", log=True, prior_sigma=0.5,
                   doc="width of the transformation bands (Af - As, Ms - Mf) multiplier"),
         ParamSpec("hysteresis_shift_C", -15.0, 15.0, 0.0, "plant", prior_sigma=6.0,
@@ -528,14 +530,14 @@ class Model:
     """Nominal params + effects -> batched predictions over a prepared dataset."""
 
     def __init__(self, data: Prepared, base: NeckParams | None = None,
-                 spring_modulus: bool = False):
+                 spring_modulus: bool = False, terminals: bool = False):
         self.data = data
         base = base or default_params()
         if tuple(base.muscles.azimuths_deg) != data.azimuths:
             base = base.replace(source="meta.json", muscles__azimuths_deg=data.azimuths)
         self.base = base
         self.nominal = nominal_specs(data.ambient, data.ambient_sigma, data.has_T, spring_modulus,
-                                     **wire_ratios(data, base))
+                                     terminals=terminals, **wire_ratios(data, base))
         # recorded time since the dataset's first sample (recordings back to back, file order):
         # the clock of a sensor drift that builds up over use
         dur = np.array([t[-1] - t[0] for t in data.t])

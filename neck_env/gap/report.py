@@ -261,6 +261,10 @@ def text_report(rep: dict) -> str:
                  f"(default {tau['default']:.3g} s): "
                  + ("identified by the cooling tails (the thermal figure to compare with another "
                     "model or a bench measurement)" if tau["identified"] else not_identified))
+        cold = rep["calibration"].get("cooling_time_constant_cold_terminals_s")
+        if cold and cold["identified"] and cold["value"] < 0.95 * tau["value"]:
+            L.append(f"    heat drained into the terminals: a tail starts at m c/(h A + G) = "
+                     f"{cold['value']:.3g} s while they are cold, and slows as they warm")
     h = rep["calibration"].get("convection_W_m2K")
     if h:
         wire = (f"d {1e3 * h['wire_diameter_m']:.3g} mm, c {h['specific_heat_J_kgK']:.0f} J/kgK, "
