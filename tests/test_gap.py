@@ -19,7 +19,7 @@ from neck_env import effects as fx
 from neck_env.gap.cli import main as gap_main
 from neck_env.gap.model import tilt_vec
 from neck_env.gap.synthetic import generate
-from neck_env.params import default_params
+from neck_env.params import NeckParams, default_params
 from neck_env.physics import layout as L
 from neck_env.physics.plant import constants_from_params, cooling_time_constant_s, simulate
 from neck_env.recording import read_dataset, write_meta, write_recording
@@ -161,6 +161,11 @@ def test_heat_drained_into_the_terminals_is_this_rigs_baseline_not_a_higher_h(tm
     share = cal["params"]["terminal_share"]
     assert 0.3 < share["value"] < 0.8 and share["identified"], share
     assert cal["cooling_time_constant_s"]["value"] == pytest.approx(cooling_time_constant_s(base), rel=0.15)
+    # the export carries the path: NeckTrack-v0 loaded from it replays this rig
+    assert NeckParams.load(rep["outputs"]["params"]).thermal.terminal_conductance_W_K > 0
+    replay, defaults = _replay_export_and_defaults(ds, rep)
+    print("replay RMS per recording, export", np.round(replay, 3), "defaults", np.round(defaults, 3))
+    assert np.median(replay) < 0.1 and np.median(replay) < 0.5 * np.median(defaults), (replay, defaults)
 
 
 def test_paper_phi_offset_is_imu_misalignment(tmp_path):

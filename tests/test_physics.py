@@ -202,6 +202,30 @@ def test_no_terminal_conductance_is_the_model_without_terminals(params):
     assert np.all(bare[:, 2] == params.thermal.ambient_C)
 
 
+def test_a_source_edit_drops_the_packages_stale_compiled_caches(tmp_path, monkeypatch):
+    # numba checks a cached function against its own file only; the env's cached step inlines
+    # the plant from another file, so any edit of the package must drop every cache
+    from neck_env.physics import compile as C
+
+    pkg = tmp_path / "pkg"
+    (pkg / "physics" / "__pycache__").mkdir(parents=True)
+    (pkg / "envs" / "__pycache__").mkdir(parents=True)
+    (pkg / "physics" / "plant.py").write_text("A = 1\n")
+    stale = pkg / "envs" / "__pycache__" / "core._rows-1.py311.nbi"
+    stale.write_text("index")
+    monkeypatch.setattr(C, "_PACKAGE", pkg)
+    monkeypatch.setattr(C, "_STAMP", pkg / "physics" / "__pycache__" / "neck_env_sources.sha1")
+    C._drop_stale_caches()  # no stamp yet: whatever is cached may predate these sources
+    assert not stale.exists()
+    fresh = pkg / "envs" / "__pycache__" / "core._rows-1.py311.nbc"
+    fresh.write_text("code")
+    C._drop_stale_caches()  # nothing edited: the cache stays
+    assert fresh.exists()
+    (pkg / "physics" / "plant.py").write_text("A = 2\n")
+    C._drop_stale_caches()
+    assert not fresh.exists()
+
+
 # --- Backbone kinematics --------------------------------------------------------------------
 
 def test_tip_position_matches_eq6():

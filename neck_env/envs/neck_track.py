@@ -104,6 +104,9 @@ _DOC = """
 
     ## Version History
 
+    * v1 (2026-11-27, no change to the default dynamics): `params` may give the springs a heat
+      path into their terminals (`Thermal.terminal_*`, off in the calibrated defaults), as
+      `neck-gap --fit-terminals` exports it for a rig whose crimps and posts take heat.
     * v1 (2026-11-24, no change to the default dynamics): the opt-in `sma_fatigue` effect keeps
       the recoverable strain it takes as permanent set, so a worn muscle bends less when hot
       and rests where it did; before, the lost strain vanished, the cold springs pulled harder
