@@ -41,7 +41,7 @@ import numpy as np
 from scipy.stats import f as f_dist
 
 from .. import effects as fx
-from ..physics.plant import cooling_time_constant_s
+from ..physics.plant import cold_terminals_cooling_time_constant_s, cooling_time_constant_s
 from ..recording import Dataset
 from . import localize
 from .fit import Candidate, Fitter, covariance
@@ -929,9 +929,10 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
         params["h_scale"]["identified"] = derived["convection_W_m2K"]["identified"]
         if "terminal_share" in params:
             # a tail measured on the bench starts at this, while the terminals are still cold
-            share = params["terminal_share"]
+            fitted = fitter.model.params_of({k: v["value"] for k, v in params.items()})
             derived["cooling_time_constant_cold_terminals_s"] = {
-                "value": tau["value"] / (1.0 + share["value"]), "identified": bool(share["identified"]),
+                "value": cold_terminals_cooling_time_constant_s(fitted),
+                "identified": bool(params["terminal_share"]["identified"]),
                 "doc": "m c / (h A + G): a cooling tail's time constant while the terminals are cold, s"}
     for i in range(len(keys)):
         for j in range(i + 1, len(keys)):

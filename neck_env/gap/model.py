@@ -557,16 +557,16 @@ class Model:
         wm = (m.Ms_C - m.Mf_C) * s("width_scale", 1.0)
         hy = s("hysteresis_shift_C", 0.0)
         h = b.thermal.convection_W_m2K * s("h_scale", 1.0)
-        th = b.thermal
         terminal = {}
         if "terminal_share" in setting:
             # conductance G = share x h A; the terminals lose 2 G to the air (so they settle
-            # at half their springs' rise) and hold tau x (2 G + 2 G) of heat
+            # at half their springs' rise) and hold tau x (2 G + 2 G) of heat. With G = 0 the
+            # plant never reads the other two: the base's stay
             g = s("terminal_share", 0.0) * h * math.pi * b.spring.wire_diameter_m * b.spring.wire_length_m
-            terminal = dict(thermal__terminal_conductance_W_K=g,
-                            thermal__terminal_loss_W_K=2.0 * g if g > 0 else th.terminal_loss_W_K,
-                            thermal__terminal_heat_capacity_J_K=(4.0 * g * s("terminal_tau_s", 40.0)
-                                                                 if g > 0 else th.terminal_heat_capacity_J_K))
+            terminal = {"thermal__terminal_conductance_W_K": g}
+            if g > 0:
+                terminal.update(thermal__terminal_loss_W_K=2.0 * g,
+                                thermal__terminal_heat_capacity_J_K=4.0 * g * s("terminal_tau_s", 40.0))
         return b.replace(
             source=source,
             **terminal,

@@ -121,6 +121,13 @@ def cooling_time_constant_s(params: NeckParams) -> float:
     return float(c[HEAT_CAP] / c[HA])
 
 
+def cold_terminals_cooling_time_constant_s(params: NeckParams) -> float:
+    """m c / (h A + G): the time constant a cooling tail starts with while the muscle's
+    terminals are still at ambient (what a bench measurement of one tail gives)."""
+    c = constants_from_params(params)[0]
+    return float(c[HEAT_CAP] / (c[HA] + c[TERM_G]))
+
+
 def refresh_derived(consts: np.ndarray) -> None:
     """Recompute the derived columns after base columns changed (randomization, fitting)."""
     consts[:, INV_C_A] = 1.0 / consts[:, C_A]
