@@ -9,9 +9,10 @@ A **recording** is a CSV file with a header line. Required columns::
     theta_deg  measured bending angle, deg (>= 0)
     phi_deg    measured bending-plane angle, deg, in [0, 360) (ill-defined when theta ~ 0)
 
-Optional: ``T1,T2,T3`` (spring temperatures, deg C), ``roll_deg,pitch_deg``, raw IMU columns,
-measured currents ``i1_meas..``. Unknown columns are kept (``Recording.extra``) and ignored by
-the tools that do not know them.
+Optional: ``T1,T2,T3`` (spring temperatures, deg C: any of them, one per fitted thermistor; an
+empty or ``nan`` cell is a missing reading, e.g. an open or shorted sensor), ``roll_deg,pitch_deg``,
+raw IMU columns, measured currents ``i1_meas..``. Unknown columns are kept (``Recording.extra``)
+and ignored by the tools that do not know them.
 
 A **dataset** is a folder of recordings (``*.csv``), in time order by file name (natural order:
 ``rec_2`` before ``rec_10``), with an optional ``meta.json`` holding ``ambient_C``,
@@ -72,7 +73,8 @@ class Recording:
     currents_A: np.ndarray  # (n, 3) commanded i1, i2, i3
     theta_deg: np.ndarray  # (n,)
     phi_deg: np.ndarray  # (n,) in [0, 360)
-    temperatures_C: np.ndarray | None = None  # (n, 3) T1..T3 when recorded
+    # (n, 3) T1..T3 when any is recorded; NaN: a channel not recorded, or a missing reading
+    temperatures_C: np.ndarray | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)  # other columns, as floats or str
     name: str = ""
     path: Path | None = None
@@ -115,7 +117,8 @@ class Recording:
                 "i3": self.currents_A[:, 2], "theta_deg": self.theta_deg, "phi_deg": self.phi_deg}
         if self.temperatures_C is not None:
             for k, name in enumerate(TEMPERATURE_COLUMNS):
-                cols[name] = self.temperatures_C[:, k]
+                if np.isfinite(self.temperatures_C[:, k]).any():  # a channel never read: no column
+                    cols[name] = self.temperatures_C[:, k]
         cols.update(self.extra)
         return cols
 
@@ -130,7 +133,9 @@ class Dataset:
 
     @property
     def has_temperatures(self) -> bool:
-        return all(r.temperatures_C is not None for r in self.recordings)
+        """Any recording holds a spring temperature reading (any channel)."""
+        return any(r.temperatures_C is not None and np.isfinite(r.temperatures_C).any()
+                   for r in self.recordings)
 
     def __len__(self) -> int:
         return len(self.recordings)
@@ -141,14 +146,20 @@ class Dataset:
 
 # -- reading ------------------------------------------------------------------------------------
 
-def _parse_float(text: str, path: Path, line: int, column: str) -> float:
+def _parse_float(text: str, path: Path, line: int, column: str, missing_ok: bool = False) -> float:
+    """A finite number; with ``missing_ok`` (a thermistor column) an empty or NaN cell is a
+    missing reading (NaN), while text or an infinity is still an error."""
     s = text.strip()
     if s == "":
+        if missing_ok:
+            return math.nan
         raise RecordingError(path, f"column {column!r} is empty (a NaN row)", line)
     try:
         v = float(s)
     except ValueError:
         raise RecordingError(path, f"column {column!r} is not a number: {s!r}", line) from None
+    if math.isnan(v) and missing_ok:
+        return math.nan
     if not math.isfinite(v):
         raise RecordingError(path, f"column {column!r} is {s!r} (a NaN row; values must be finite)",
                              line)
@@ -192,16 +203,18 @@ def read_recording(path: str | Path) -> Recording:
     if not rows:
         raise RecordingError(path, "no data rows after the header (an empty recording)")
     idx = {c: header.index(c) for c in header}
-    has_T = all(c in idx for c in TEMPERATURE_COLUMNS)
-    numeric = list(REQUIRED_COLUMNS) + (list(TEMPERATURE_COLUMNS) if has_T else [])
+    # a rig with thermistors on some springs only writes their columns
+    t_cols = [c for c in TEMPERATURE_COLUMNS if c in idx]
+    numeric = list(REQUIRED_COLUMNS) + t_cols
     extra_names = [c for c in header if c not in numeric]
     values = np.empty((len(rows), len(numeric)))
     extra_raw: dict[str, list[str]] = {c: [] for c in extra_names}
+    n_req = len(REQUIRED_COLUMNS)
     for r, (ln, row) in enumerate(rows):
         if len(row) != len(header):
             raise RecordingError(path, f"{len(row)} fields, the header has {len(header)}", ln)
         for j, c in enumerate(numeric):
-            values[r, j] = _parse_float(row[idx[c]], path, ln, c)
+            values[r, j] = _parse_float(row[idx[c]], path, ln, c, missing_ok=j >= n_req)
         for c in extra_names:
             extra_raw[c].append(row[idx[c]].strip())
     t = values[:, 0]
@@ -223,7 +236,11 @@ def read_recording(path: str | Path) -> Recording:
     if neg.size:
         raise RecordingError(path, f"theta_deg = {theta[neg[0]]:g} is negative", rows[neg[0]][0])
     phi = np.mod(values[:, 5], 360.0)
-    temps = values[:, 6:9] if has_T else None
+    temps = None
+    if t_cols:
+        temps = np.full((len(rows), 3), math.nan)
+        for j, c in enumerate(t_cols):
+            temps[:, TEMPERATURE_COLUMNS.index(c)] = values[:, n_req + j]
     extra: dict[str, np.ndarray] = {}
     for c, vals in extra_raw.items():
         try:
@@ -368,8 +385,9 @@ class RecordingWriter:
 
     ``columns`` must contain the required ones (``t, i1, i2, i3, theta_deg, phi_deg``); extra
     columns (``T1..T3``, raw IMU, ...) are written in the given order. Rows are dicts or
-    keyword arguments; required and ``T1..T3`` values must be finite, other missing extra values
-    are written empty. The writer validates what
+    keyword arguments; required values must be finite; a missing or NaN thermistor reading
+    (``T1..T3``: an open or shorted sensor) and other missing extra values are written empty.
+    The writer validates what
     :func:`read_recording` would reject (missing required value, NaN, t not increasing) and
     raises ``ValueError`` before writing a bad row, so what is on disk always reads back.
 
@@ -391,9 +409,9 @@ class RecordingWriter:
         if not (flush_s >= 0 and math.isfinite(flush_s)):
             raise ValueError(f"flush_s must be >= 0, got {flush_s!r}")
         self.columns = tuple(cols)
-        # required and thermistor columns must be finite in every row (the reader rejects NaN
-        # rows there); other extra columns may be left empty
-        self._strict = [c for c in cols if c in REQUIRED_COLUMNS or c in TEMPERATURE_COLUMNS]
+        # required columns must be finite in every row (the reader rejects NaN rows there);
+        # a thermistor that drops out mid-recording must not end it: its cell is left empty
+        self._strict = [c for c in cols if c in REQUIRED_COLUMNS]
         self.flush_s = float(flush_s)
         self.fsync = fsync
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -425,6 +443,13 @@ class RecordingWriter:
         for k in ("i1", "i2", "i3", "theta_deg"):
             if float(data[k]) < 0:
                 raise ValueError(f"{self.path}: {k} = {data[k]} must be >= 0")
+        for c in TEMPERATURE_COLUMNS:
+            v = data.get(c)
+            if v is not None and not isinstance(v, str) and math.isinf(float(v)):
+                raise ValueError(f"{self.path}: row {self.rows + 1}: {c} = {v!r} is infinite "
+                                 f"(write a missing reading as NaN or None)")
+            if v is not None and not isinstance(v, str) and math.isnan(float(v)):
+                data[c] = None
         data["phi_deg"] = float(data["phi_deg"]) % 360.0
         self._f.write(",".join("" if data.get(c) is None else _fmt(data[c])
                                for c in self.columns) + "\n")
@@ -491,11 +516,15 @@ def write_recording(path: str | Path, recording: Recording | Mapping[str, Sequen
     for c in ("i1", "i2", "i3", "theta_deg"):
         if np.any(req[c] < 0):
             raise ValueError(f"{path}: {c} must be >= 0")
+    for c in TEMPERATURE_COLUMNS:
+        if c in names and np.any(np.isinf(np.asarray(cols[c], float))):
+            raise ValueError(f"{path}: column {c} has infinite values (a missing reading is NaN)")
     arrays[names.index("phi_deg")] = np.mod(req["phi_deg"], 360.0)
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = [",".join(names)]
     for i in range(lengths.pop()):
-        lines.append(",".join(_fmt(a[i]) for a in arrays))
+        lines.append(",".join("" if c in TEMPERATURE_COLUMNS and not np.isfinite(a[i])
+                              else _fmt(a[i]) for c, a in zip(names, arrays)))
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 

@@ -19,6 +19,7 @@ from neck_env.rig import protocol as P
 
 TELEMETRY_FMT = "<HIBBBB3H3hh3h3HHHHHB"
 HELLO_FMT = "<BBBBBBBBHHHHHHBBBBBBHHHB"
+THERM_OPEN_ADC = 1015  # what HELLO reports: a fitted NTC reading this or above is open
 
 
 class FakeFirmware:
@@ -36,6 +37,7 @@ class FakeFirmware:
         self.modes = [P.Mode.OFF] * 3
         self.stream_hz = 0
         self.therm_mask = 0
+        self.therm_adc = [512, 512, 512]  # raw NTC readings (512: 25 C; 1023: an open sensor)
         self.bad_frames = 0
         self.heartbeat_trips = 0
         self.received: list[P.Message] = []
@@ -95,11 +97,13 @@ class FakeFirmware:
             imu_ok = not self.imu_faults
             accel = self.accel if imu_ok else (0, 0, 0)
             faults = self.imu_faults | (P.Fault.HEARTBEAT_LOST if self.heartbeat_trips else 0)
+            if any(self.therm_mask >> k & 1 and a >= THERM_OPEN_ADC for k, a in enumerate(self.therm_adc)):
+                faults |= P.Fault.THERM_SENSOR  # as the firmware: a fitted sensor reads open
             modes = sum(int(m) << (2 * k) for k, m in enumerate(self.modes))
             self._tel_seq = (self._tel_seq + 1) & 0xFFFF
             return struct.pack(TELEMETRY_FMT, self._tel_seq, self.millis() & 0xFFFFFFFF,
                                self.relays, 0, modes, self.stream_hz, *self.duties, *accel,
-                               -3920, 0, 0, 0, 512, 512, 512, int(faults), self.bad_frames, 0,
+                               -3920, 0, 0, 0, *self.therm_adc, int(faults), self.bad_frames, 0,
                                0, self.therm_mask)
 
     def send_boot(self) -> None:
@@ -135,7 +139,7 @@ class FakeFirmware:
             if isinstance(msg, P.Hello):
                 payload = struct.pack(HELLO_FMT, self.protocol_version, 1, 1, 0, 5, 6, 7,
                                       self.therm_mask, 1000, 800, 250, 10000, 10000, 20000, 4,
-                                      100, 200, 8, 8, 3, 51, 67, 1015, 0)
+                                      100, 200, 8, 8, 3, 51, 67, THERM_OPEN_ADC, 0)
                 self._send(P.MsgType.HELLO_REPLY, fr.seq, payload)
                 return
             if isinstance(msg, P.SetRelays):

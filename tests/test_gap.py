@@ -168,6 +168,47 @@ def test_heat_drained_into_the_terminals_is_this_rigs_baseline_not_a_higher_h(tm
     assert np.median(replay) < 0.1 and np.median(replay) < 0.5 * np.median(defaults), (replay, defaults)
 
 
+def test_one_thermistor_that_drops_out_still_pins_this_rigs_cooling(tmp_path):
+    """A rig with a thermistor on muscle 1's spring only, whose wire comes loose now and then
+    (a quarter of its readings missing, scattered, and a 3 s stretch in every recording), on
+    springs that cool at half the model's h. The readings it has enter the fit: h comes out at
+    this rig's value and tighter than from the tilt alone, nothing is blamed, and the report
+    says what the temperatures rest on."""
+    base = default_params()
+    rig = base.replace(thermal__convection_W_m2K=0.5 * base.thermal.convection_W_m2K)
+    plan = [([0], 6.0), ([1], 7.0), ([2], 5.0), ([0, 1], 6.5), ([0], 8.0), ([1, 2], 5.5),
+            ([2], 6.5), ([0], 4.5)]
+    full, one, none = tmp_path / "full", tmp_path / "one", tmp_path / "none"
+    _write_pulses(full, rig, plan, length_s=30.0, temperatures=True)
+    rng = np.random.default_rng(3)
+    for out in (one, none):
+        out.mkdir()
+        (out / "meta.json").write_text((full / "meta.json").read_text())
+    for rec in read_dataset(full).recordings:
+        cols = {k: v for k, v in rec.columns().items() if k not in ("T1", "T2", "T3")}
+        write_recording(none / f"{rec.name}.csv", cols)
+        t1 = rec.temperatures_C[:, 0].copy()
+        t1[rng.random(t1.size) < 0.25] = np.nan
+        t1[(rec.t > 8.0) & (rec.t < 11.0)] = np.nan  # the wire off for 3 s while cooling
+        write_recording(one / f"{rec.name}.csv", dict(cols, T1=t1))
+    assert "T2" not in (one / "rec_01.csv").read_text().splitlines()[0]
+    assert any(line.endswith(",") for line in (one / "rec_01.csv").read_text().splitlines())
+    rep = _diagnose(one, tmp_path, "one")
+    _check_contract(rep)
+    assert rep["verdict"] == [] and rep["temperatures_used"] is True
+    read = rep["temperature_readings"]
+    assert read["T2"] == read["T3"] == 0.0 and 0.6 < read["T1"] < 0.75, read
+    h = rep["calibration"]["params"]["h_scale"]
+    assert h["value"] == pytest.approx(0.5, rel=0.15), h
+    assert rep["calibration"]["cooling_time_constant_s"]["value"] == pytest.approx(
+        cooling_time_constant_s(rig), rel=0.15)
+    tilt_only = _diagnose(none, tmp_path, "none")
+    assert tilt_only["temperatures_used"] is False and tilt_only["temperature_readings"] == {}
+    h0 = tilt_only["calibration"]["params"]["h_scale"]
+    print("h_scale with one thermistor", h, "tilt only", h0)
+    assert h["std"] < h0["std"], (h, h0)
+
+
 def test_paper_phi_offset_is_imu_misalignment(tmp_path):
     """The paper's own gap: phi settles off 180/60/300 deg, which the authors blame on the IMU
     mount. Its experiments (5 s pulses at 4-5 A and 6-8 A, no thermistors) on a rig whose IMU is

@@ -2,6 +2,7 @@
 datasets in name order with meta.json, and the flushing writer."""
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -141,13 +142,51 @@ def test_writer_validates_and_flushes(tmp_path):
         w.write(t=0.01, i1=0, i2=0, i3=0, theta_deg=0, phi_deg=0, T1=25, T2=25, T3=25)
     with pytest.raises(ValueError, match="finite theta_deg"):
         w.write(t=0.04, i1=0, i2=0, i3=0, theta_deg=float("nan"), phi_deg=0, T1=25, T2=25, T3=25)
-    with pytest.raises(ValueError, match="finite T2"):
-        w.write(t=0.04, i1=0, i2=0, i3=0, theta_deg=0, phi_deg=0, T1=25, T3=25)
+    with pytest.raises(ValueError, match="T2 = inf is infinite"):
+        w.write(t=0.04, i1=0, i2=0, i3=0, theta_deg=0, phi_deg=0, T1=25, T2=math.inf, T3=25)
     with pytest.raises(ValueError, match="unknown column"):
         w.write(t=0.04, i1=0, i2=0, i3=0, theta_deg=0, phi_deg=0, bogus=1)
+    # a thermistor that drops out (open or shorted: NaN) or is not read (None) does not end
+    # the recording: its cell is left empty and reads back as a missing reading
+    w.write(t=0.04, i1=7, i2=0, i3=0, theta_deg=0.2, phi_deg=180, T1=27, T2=float("nan"), T3=25)
+    w.write(t=0.06, i1=7, i2=0, i3=0, theta_deg=0.3, phi_deg=180, T1=28, T3=25)
     w.close()
+    assert p.read_text().splitlines()[-1].endswith(",28.0,,25.0")
     rec = read_recording(p)
-    assert rec.n == 2 and rec.temperatures_C[1, 0] == 26
+    assert rec.n == 4 and rec.temperatures_C[1, 0] == 26
+    np.testing.assert_array_equal(np.isnan(rec.temperatures_C[:, 1]), [False, False, True, True])
+
+
+def test_thermistors_on_some_springs_and_missing_readings(tmp_path):
+    """Any of T1..T3 (one per fitted thermistor); an empty or NaN cell is a missing reading,
+    text or an infinity in a thermistor column is still an error."""
+    text = ("t,i1,i2,i3,theta_deg,phi_deg,T3\n0,0,0,0,0,0,25.0\n0.1,5,0,0,1,180,\n"
+            "0.2,5,0,0,2,180,nan\n0.3,5,0,0,3,180,27.5\n")
+    rec = read_recording(_write(tmp_path / "rec_01.csv", text))
+    assert rec.temperatures_C.shape == (4, 3)
+    assert np.isnan(rec.temperatures_C[:, :2]).all()
+    np.testing.assert_array_equal(rec.temperatures_C[[0, 3], 2], [25.0, 27.5])
+    assert np.isnan(rec.temperatures_C[1:3, 2]).all()
+    # a channel never read gets no column when written back; the rest round-trips
+    write_recording(tmp_path / "back" / "rec_01.csv", rec)
+    assert (tmp_path / "back" / "rec_01.csv").read_text().splitlines()[0] == "t,i1,i2,i3,theta_deg,phi_deg,T3"
+    back = read_recording(tmp_path / "back" / "rec_01.csv")
+    np.testing.assert_array_equal(np.isnan(back.temperatures_C), np.isnan(rec.temperatures_C))
+    # a dataset has temperatures when any recording holds a reading
+    plain = "t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,1,0,0,1,180\n"
+    _write(tmp_path / "back" / "rec_02.csv", plain)
+    assert read_dataset(tmp_path / "back").has_temperatures
+    unread = "t,i1,i2,i3,theta_deg,phi_deg,T1\n0,0,0,0,0,0,\n0.1,1,0,0,1,180,nan\n"
+    (tmp_path / "never").mkdir()
+    _write(tmp_path / "never" / "rec_01.csv", unread)
+    assert not read_dataset(tmp_path / "never").has_temperatures
+    for bad, fragment in (("warm", "not a number: 'warm'"), ("inf", "values must be finite")):
+        p = _write(tmp_path / f"bad_{bad}.csv", text.replace("27.5", bad))
+        with pytest.raises(RecordingError, match=fragment) as exc:
+            read_recording(p)
+        assert exc.value.line == 5
+    with pytest.raises(ValueError, match="T3 has infinite values"):
+        write_recording(tmp_path / "inf.csv", dict(rec.columns(), T3=np.full(rec.n, np.inf)))
 
 
 def test_writer_crash_loses_at_most_the_last_second(tmp_path):

@@ -892,10 +892,13 @@ def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
     J, Jp = cand.J, cand.J_prior
     r = cand.r
     n_eff = 0.0
-    ncols = 2 + (3 if fitter.model.data.has_T else 0)
+    data = fitter.model.data
+    ncols = 2 + (3 if data.has_T else 0)
     R2 = r.reshape(-1, ncols)
+    read = data.T_read[fitter.mask] if data.has_T else None
     for k in range(ncols):
-        n_eff += _ar1_neff(R2[:, k])
+        # a thermistor channel counts only its readings (a missing one is a zero residual)
+        n_eff += _ar1_neff(R2[:, k] if k < 2 else R2[read[:, k - 2], k])
     std, corr = covariance(cand, r, J, Jp, n_eff)
     params = {}
     for s, x, sd in zip(cand.specs, cand.u, std):
@@ -1147,11 +1150,21 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = F
                hold_mask=hold_mask, fitter=Fitter(model, fit_mask), rng=np.random.default_rng(0),
                say=log or (lambda *a: None), max_iter=max_iter, t0=t0)
     run.say(f"{data.n_rec} recordings, {note}; ambient {data.ambient:.1f} C ({data.ambient_source})"
-            f"{'; temperatures recorded' if data.has_T else ''}")
+            f"{'; temperatures recorded' + _readings_note(data) if data.has_T else ''}")
     base = _calibrate(run)
     att = _attribute(run, base.nominal)
     dec = _decide(run, base.nominal, att)
     return _conclude(run, base, att, dec)
+
+
+def _readings_note(data: Prepared) -> str:
+    """What the log adds where thermistors are missing or drop out, e.g. " (T1 only; T1 read
+    on 93 % of samples)"."""
+    share = data.T_read_share
+    some = [k for k, v in share.items() if v > 0]
+    partial = [f"{k} read on {100 * v:.0f} % of samples" for k, v in share.items() if 0 < v < 0.995]
+    parts = ([f"{', '.join(some)} only"] if len(some) < 3 else []) + partial
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 def _calibrate(run: _Run) -> _Baseline:

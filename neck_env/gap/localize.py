@@ -90,6 +90,7 @@ def decompose(recs: Sequence[dict]) -> dict:
     acc: dict[tuple, list[float]] = {}
     cur_acc: dict[tuple, float] = {}
     n_total = 0
+    n_read_T = 0  # temperature samples with a reading
     time_count: dict[tuple, int] = {}
     act_acc = {a: [0.0, 0] for a in ACTIVATION}  # tilt energy (theta + phi), samples
     for r in recs:
@@ -106,7 +107,10 @@ def decompose(recs: Sequence[dict]) -> dict:
         if r.get("e_T") is not None:
             for k in range(3):
                 e = (r["e_T"][:, k] / SIGMA_T) ** 2 / 3.0
-                signals.append(("temperature", e, ch[k], np.full(t.size, k + 1)))
+                read = np.isfinite(e)  # a channel not recorded, or a missing reading
+                n_read_T += int(read.sum())
+                signals.append(("temperature", np.where(read, e, 0.0),
+                                np.where(read, ch[k], -1), np.full(t.size, k + 1)))
         for sig, e2, p, m in signals:
             for pi in range(3):
                 for mk in range(4):
@@ -131,7 +135,7 @@ def decompose(recs: Sequence[dict]) -> dict:
         items.append({"signal": sig, "phase": phase, "muscle": (mk if mk else None),
                       "share": energy / total,
                       # fraction of this signal's samples that fall in the group
-                      "time_fraction": count / max(1, n_total * (3 if sig == "temperature" else 1)),
+                      "time_fraction": count / max(1, n_read_T if sig == "temperature" else n_total),
                       "rms": math.sqrt(energy / max(count, 1)) * (SIGMA_T * math.sqrt(3) if sig == "temperature" else 1.0)})
     items.sort(key=lambda d: -d["share"])
     by_signal: dict[str, float] = {}

@@ -383,6 +383,19 @@ class Prepared:
         return [np.flatnonzero(self.fit_rec == r) for r in range(self.n_rec)]
 
     @cached_property
+    def T_read_share(self) -> dict[str, float]:
+        """Per thermistor column, the share of the fit-rate samples with a reading (empty
+        without thermistors): what the report says the temperatures rest on."""
+        if self.meas_T is None:
+            return {}
+        return {f"T{k + 1}": float(self.T_read[:, k].mean()) for k in range(3)}
+
+    @cached_property
+    def T_read(self) -> np.ndarray | None:
+        """(M, 3) fit-rate samples x muscles with a thermistor reading (None: no thermistors)."""
+        return None if self.meas_T is None else np.isfinite(self.meas_T)
+
+    @cached_property
     def cold_neighbours(self) -> np.ndarray | None:
         """(M, 3) fit-rate samples x muscles: the muscle has not been powered yet in its
         recording while another one has, so its spring can only have warmed by heat from a
@@ -392,7 +405,7 @@ class Prepared:
             return None
         on = self.powered_so_far
         other = on.sum(axis=1, keepdims=True) - on > 0  # another muscle powered so far
-        return ~on & other & np.isfinite(self.meas_T)
+        return ~on & other & self.T_read
 
     @cached_property
     def before_first_pulse(self) -> np.ndarray:
@@ -456,8 +469,11 @@ def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
     pos1 = np.searchsorted(steps, np.minimum(k0 + 1, S))
     meas_theta = np.array([recs[r].theta_deg[j] for r, j in zip(fit_rec, fit_idx)])
     meas_phi = np.array([recs[r].phi_deg[j] for r, j in zip(fit_rec, fit_idx)])
-    meas_T = (np.array([recs[r].temperatures_C[j] for r, j in zip(fit_rec, fit_idx)])
-              if has_T else None)
+    # NaN where a channel is not recorded or a reading is missing: such samples carry no
+    # temperature residual anywhere (residual_vector, localize, the warming test)
+    temps = [(r.temperatures_C if r.temperatures_C is not None else np.full((r.n, 3), np.nan))
+             if has_T else None for r in recs]
+    meas_T = (np.array([temps[r][j] for r, j in zip(fit_rec, fit_idx)]) if has_T else None)
     # Ambient: meta.json, else the thermistors at the start of the recordings, else a guess.
     if ds.meta.get("ambient_C") is not None:
         ambient, amb_sig, src = float(ds.meta["ambient_C"]), 1.0, "meta.json"
@@ -466,8 +482,10 @@ def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
         for r in recs:
             n0 = max(1, min(r.n, int(round(0.5 * sample_hz))))
             quiet = np.all(r.currents_A[:n0] == 0)
-            if quiet:
-                starts.append(float(np.median(r.temperatures_C[:n0])))
+            read = (r.temperatures_C[:n0][np.isfinite(r.temperatures_C[:n0])]
+                    if r.temperatures_C is not None else np.empty(0))
+            if quiet and read.size:
+                starts.append(float(np.median(read)))
         if starts:
             ambient, amb_sig, src = float(np.median(starts)), 1.0, "thermistors at rest"
         else:
@@ -478,7 +496,7 @@ def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
     return Prepared(
         names=[r.name for r in recs], n_rec=R, n_steps=S, t0=t0, cmd_fine=cmd_fine,
         currents=currents, t=[r.t for r in recs], theta=[r.theta_deg for r in recs],
-        phi=[r.phi_deg for r in recs], temps=[r.temperatures_C for r in recs],
+        phi=[r.phi_deg for r in recs], temps=temps,
         cmd=[r.currents_A for r in recs], has_T=has_T, fit_rec=fit_rec, fit_idx=fit_idx,
         fit_k0=k0, fit_w=w, grid_steps=steps, grid_pos0=pos0, grid_pos1=pos1,
         meas_theta=meas_theta, meas_phi=meas_phi, meas_T=meas_T, ambient=ambient,
@@ -831,7 +849,7 @@ def residual_vector(data: Prepared, pred: Prediction, mask: np.ndarray | None = 
         mx, my, mT = target.tilt_x, target.tilt_y, target.T
     parts = [(mx - pred.tilt_x) / SIGMA_THETA, (my - pred.tilt_y) / SIGMA_THETA]
     if data.meas_T is not None:
-        e_T = mT - pred.T
+        e_T = np.where(data.T_read, mT - pred.T, 0.0)
         parts += [e_T[:, k] / (SIGMA_T * math.sqrt(3)) for k in range(3)]
     r = np.stack(parts, axis=1)
     if mask is not None:

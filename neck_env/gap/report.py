@@ -196,6 +196,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "calibration": dict(dg.calibration, h_default_W_m2K=dg.model.base.thermal.convection_W_m2K),
         "ambient": {"value_C": data.ambient, "source": data.ambient_source},
         "temperatures_used": bool(data.has_T),
+        "temperature_readings": {k: _r(v, 4) for k, v in data.T_read_share.items()},
         "method": {
             "gap": "RMSE over held-out samples of theta (deg) and phi weighted by "
                    "min(theta_meas, theta_model) / 5 deg (deg), pooled: sqrt((rmse_theta^2 + "

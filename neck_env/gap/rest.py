@@ -81,10 +81,13 @@ def not_at_rest(ds: Dataset, criterion: RestCriterion = REST, window_s: float = 
     rest, source = rest_reading(ds, window_s, criterion)
     warm: list[float | None] = []
     for r in ds.recordings:
-        if r.temperatures_C is None or not np.any(np.isfinite(r.temperatures_C[_start(r, window_s)])):
+        block = None if r.temperatures_C is None else r.temperatures_C[_start(r, window_s)]
+        read = None if block is None else np.isfinite(block)
+        if block is None or not read.any():
             warm.append(None)
-        else:
-            warm.append(float(np.nanmax(np.nanmean(r.temperatures_C[_start(r, window_s)], axis=0))))
+        else:  # the warmest spring with a reading (a thermistor may be missing or drop out)
+            means = np.where(read, block, 0.0).sum(axis=0) / np.maximum(read.sum(axis=0), 1)
+            warm.append(float(means[read.any(axis=0)].max()))
     known = [w for w in warm if w is not None]
     ambient = ds.meta.get("ambient_C")
     if ambient is None and known:

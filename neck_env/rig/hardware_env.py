@@ -79,12 +79,10 @@ def _warm_up_compiled(estimate: ThermalEstimate) -> None:
 
 
 def thermistor_columns(mask: int) -> list[tuple[int, str]]:
-    """(muscle index, column) of the fitted thermistors: ``T1..T3`` with all three fitted (the
-    recording format reads spring temperatures only as a complete set), else ``Tk_ntc`` for
-    each fitted one (an extra column: kept, not used by the diagnosis)."""
-    if mask == 0b111:
-        return list(enumerate(THERMISTOR_COLUMNS))
-    return [(k, f"T{k + 1}_ntc") for k in range(3) if mask >> k & 1]
+    """(muscle index, column) of the fitted thermistors: ``Tk`` for each fitted one (the
+    recording format reads any of T1..T3; a reading that fails, open or shorted, is an empty
+    cell)."""
+    return [(k, THERMISTOR_COLUMNS[k]) for k in range(3) if mask >> k & 1]
 
 
 class HardwareNeckEnv(gym.Env):
@@ -154,8 +152,8 @@ class HardwareNeckEnv(gym.Env):
     ## Recording
 
     With `record_dir`, every episode writes `rec_NN.csv` (format: docs/recording-format.md;
-    `t`, commanded `i1..i3` = `I_s` while the relay pin is on, `theta_deg`, `phi_deg`, `T1..T3`
-    only from thermistors on all three muscles -- a partial set as `Tk_ntc` --; the estimate as
+    `t`, commanded `i1..i3` = `I_s` while the relay pin is on, `theta_deg`, `phi_deg`, `Tk`
+    for each fitted thermistor -- empty where it reads open or shorted --; the estimate as
     `T1_est..`, raw IMU, relays, faults, target) at the
     telemetry rate, flushed at least every 0.5 s, and `meta.json`; `neck_env.gap` reads the
     folder as it is.
