@@ -492,3 +492,21 @@ def test_the_baseline_is_centred_on_the_rigs_own_wire(d_m, c_J_kgK):
 def test_a_wire_ratio_that_is_no_wire_is_refused(bad):
     with pytest.raises(ValueError, match="wire ratios"):
         nominal_specs(25.0, 1.0, wire_diameter_ratio=bad)
+
+
+def test_the_fit_reaches_every_catalogued_effect_size():
+    """Each effect's fitted bounds contain the catalogue's whole range (else a large effect
+    leaves a misfit nothing can fit and goes unnamed); the IMU's mount tilt, carried by the
+    baseline's zero offset, included (at +-4 deg a 5 deg tilt was left over: third rig 6006)."""
+    from neck_env import effects as fx
+
+    for name, spec_list in EFFECT_SPECS.items():
+        fitted = {s.key.split(".", 1)[1]: s for s in spec_list}
+        for param, p in fx.EFFECTS[name].params.items():
+            if param in fitted:
+                s = fitted[param]
+                assert s.lower <= p.low and p.high <= s.upper, (name, param, s, p)
+    offsets = {s.key: s for s in nominal_specs(25.0, 1.0) if s.key.startswith("offset_")}
+    tilt = fx.EFFECTS["imu_misalignment"].params["tilt_deg"].high
+    assert set(offsets) == {"offset_x_deg", "offset_y_deg"}
+    assert all(s.lower <= -tilt and tilt <= s.upper for s in offsets.values()), offsets
