@@ -12,7 +12,7 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    WARMING_MIN_ABS_C, WARMING_MIN_REL, Comparison, Warming,
                                    CREEP_SHARES, CREEP_STARTS, _convection,
                                    _cooling_time_constant,
-                                   _creep_rebalanced, _draft_rebalanced, _scan_values,
+                                   _creep_rebalanced, _draft_rebalanced, _scan_values, draft_onsets,
                                    choose_holdout, f_crit, fast_power, responsible, rest_moves,
                                    scan_all_starts, significant, structure_reason, warms)
 from neck_env.effects import apply_to_constants
@@ -327,11 +327,11 @@ def test_creep_keeps_its_next_best_scan_points_as_starts():
     # a fake rig whose cost is the distance of the creep branch from 2.5 (any other effect:
     # flat): the scan's order decides which starts the fit gets
     specs = nominal_specs(25.0, 1.0, False)
-    model = SimpleNamespace(nominal=specs, data=SimpleNamespace(n_rec=15),
+    model = SimpleNamespace(nominal=specs, data=SimpleNamespace(n_rec=15, fit_rec=np.arange(15)),
                             predict=lambda settings: settings)
     cost = lambda st: [abs(st.get("backbone_viscoelasticity.stiffness_ratio", 0.0) - 2.5)
                        + 0.1 * abs(st.get("EI_scale", 1.0) - 1.0)]
-    fitter = SimpleNamespace(data_res=lambda st: np.array(cost(st)))
+    fitter = SimpleNamespace(data_res=lambda st: np.array(cost(st)), mask=None)
     base = {s.key: s.start for s in specs}
     names = ["backbone_viscoelasticity", "head_payload"]
     starts = scan_all_starts(model, fitter, base, [], names, np.random.default_rng(0))
@@ -510,3 +510,23 @@ def test_the_fit_reaches_every_catalogued_effect_size():
     tilt = fx.EFFECTS["imu_misalignment"].params["tilt_deg"].high
     assert set(offsets) == {"offset_x_deg", "offset_y_deg"}
     assert all(s.lower <= -tilt and tilt <= s.upper for s in offsets.values()), offsets
+
+
+def test_a_draft_starts_with_fitting_recordings_on_both_sides():
+    """A draft over every fitting recording is a constant gain on h there: the fit cannot tell
+    the two apart and predicts the held-out recordings before it with an h the data never saw
+    (held-out gaps 2-36x the nominal refit's on 38 of 549 stored reports: the first recording
+    held out, the draft from the second). One over no fitting recording fits nothing. So a
+    draft starts after the first fitting recording and at or before the last one."""
+    n = 15
+    held_first = np.array([1, 2, 3, 5, 6, 7, 8, 9, 10, 12, 13])  # rec 0, 4, 11, 14 held out
+    assert draft_onsets(n, held_first) == list(range(2, 14))
+    assert draft_onsets(n, np.arange(n)) == list(range(1, n))
+    assert draft_onsets(n, np.array([6])) == [] and draft_onsets(n, np.array([], int)) == []
+    scanned = _scan_values("convection_change", EFFECT_SPECS["convection_change"],
+                           np.random.default_rng(0), n, {"h_scale": 1.0},
+                           draft_onsets(n, held_first))
+    starts = {v[DRAFT_FROM] for v in scanned if v.get("convection_change.gain", 1.0) != 1.0}
+    assert starts == set(float(k) for k in range(2, 14))
+    # the temperature form is always scanned (no start: DRAFT_FROM = n)
+    assert any(v[DRAFT_FROM] == n and v["convection_change.tcoef_per_K"] > 0 for v in scanned)

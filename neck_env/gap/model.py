@@ -408,7 +408,7 @@ class Prepared:
             return None
         on = self.powered_so_far
         other = on.sum(axis=1, keepdims=True) - on > 0  # another muscle powered so far
-        return ~on & other & self.T_read
+        return ~on & other & np.isfinite(self.meas_T)
 
     @cached_property
     def before_first_pulse(self) -> np.ndarray:
