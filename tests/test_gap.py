@@ -40,7 +40,10 @@ def _check_contract(rep: dict) -> None:
     assert REPORT_KEYS <= set(rep)
     assert isinstance(rep["verdict"], list) and isinstance(rep["unexplained"], bool)
     assert {e["name"] for e in rep["effects"]} == set(fx.CATALOGUE)
-    gaps = [e["heldout_gap_after"] for e in rep["effects"]]
+    # ranked best first: the verdict's effects (the conclusion), then the rest by held-out gap
+    names = [e["name"] for e in rep["effects"]]
+    assert names[:len(rep["verdict"])] == rep["verdict"], (names, rep["verdict"])
+    gaps = [e["heldout_gap_after"] for e in rep["effects"][len(rep["verdict"]):]]
     assert gaps == sorted(gaps), "effects must be ranked best first"
     for e in rep["effects"]:
         assert {"name", "params", "heldout_gap_before", "heldout_gap_after"} <= set(e)

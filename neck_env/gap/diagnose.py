@@ -1449,7 +1449,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
     run.lap("absorption_s")
     run.timing["total_s"] = time.perf_counter() - run.t0
     return Diagnosis(data=data, model=model, hold_rec=run.hold_rec, split_note=run.split_note,
-                     nominal=nominal, singles=att.singles, single_cmp=att.single_cmp,
+                     nominal=nominal, singles=ranked(att.singles, verdict), single_cmp=att.single_cmp,
                      pairs=dec.pairs, pair_cmp=dec.pair_cmp, verdict=verdict,
                      final_nominal=final_nominal, final=final, final_cmp=final_cmp,
                      remaining=Remaining(systematic_rms_deg=sys_rms, systematic_tol_deg=sys_tol,
@@ -1461,6 +1461,16 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                            "nominal_heldout": base.full_plain}, timing=run.timing,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp,
                      absorption=absorbed)
+
+
+def ranked(singles: Sequence[Candidate], verdict: Sequence[str]) -> list[Candidate]:
+    """The report's ranking: the verdict's effects first, in its order, then the rest by
+    held-out gap (as ``singles`` come). An effect named on evidence other than the tilt -- the
+    cold neighbours warming for ``thermal_coupling`` -- can remove less of the held-out tilt
+    gap than a wrong one; ranked by the tilt alone it stood below effects the diagnosis had
+    rejected (third rig 5011, 6011, 6020), a ranking that contradicted its own verdict."""
+    place = {name: k for k, name in enumerate(verdict)}
+    return sorted(singles, key=lambda c: place.get(c.effects[0], len(place)))
 
 
 def structure_reason(att: _Attribution, verdict: Sequence[str], sys_rms_deg: float,

@@ -299,7 +299,8 @@ def text_report(rep: dict) -> str:
         L.append(f"    {100 * it['share']:5.1f} %  {it['signal']:11s} {it['phase']:8s} {m:10s} "
                  f"(RMS {it['rms']:.2f}, {100 * it['time_fraction']:.0f} % of the time)")
     L.append("")
-    L.append("Effects ranked by held-out gap (nominal + effect refitted on the fitting recordings):")
+    L.append("Effects ranked: the verdict's first, then by held-out gap (nominal + effect refitted "
+             "on the fitting recordings):")
     for e in rep["effects"]:
         ps = ", ".join(f"{k}={v:.3g}" for k, v in e["params"].items())
         L.append(f"  {'*' if e['significant'] else ' '} {e['name']:25s} {e['heldout_gap_before']:.3f} -> "
