@@ -222,6 +222,7 @@ def test_the_neighbours_warming_is_read_from_each_thermistors_own_zero():
     data.meas_T = true_T + offsets
     data.powered_so_far = Prepared.powered_so_far.func(data)
     data.before_first_pulse = Prepared.before_first_pulse.func(data)
+    data.T_read = Prepared.T_read.func(data)
     data.cold_neighbours = Prepared.cold_neighbours.func(data)
     assert data.before_first_pulse[:n].sum() == 20 and not data.before_first_pulse[n:].any()
     assert data.cold_neighbours[:n, 1:].sum() == 2 * 280 and not data.cold_neighbours[:n, 0].any()

@@ -408,7 +408,7 @@ class Prepared:
             return None
         on = self.powered_so_far
         other = on.sum(axis=1, keepdims=True) - on > 0  # another muscle powered so far
-        return ~on & other & np.isfinite(self.meas_T)
+        return ~on & other & self.T_read
 
     @cached_property
     def before_first_pulse(self) -> np.ndarray:
@@ -482,12 +482,10 @@ def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
         ambient, amb_sig, src = float(ds.meta["ambient_C"]), 1.0, "meta.json"
     elif has_T:
         starts = []
-        for r in recs:
+        for r, T in zip(recs, temps):
             n0 = max(1, min(r.n, int(round(0.5 * sample_hz))))
-            quiet = np.all(r.currents_A[:n0] == 0)
-            read = (r.temperatures_C[:n0][np.isfinite(r.temperatures_C[:n0])]
-                    if r.temperatures_C is not None else np.empty(0))
-            if quiet and read.size:
+            read = T[:n0][np.isfinite(T[:n0])]
+            if np.all(r.currents_A[:n0] == 0) and read.size:
                 starts.append(float(np.median(read)))
         if starts:
             ambient, amb_sig, src = float(np.median(starts)), 1.0, "thermistors at rest"

@@ -22,7 +22,7 @@ import numpy as np
 from ..experiments import REST, RestCriterion
 from ..observation import FILTER_TAU_S, fill_observation, fuse_tilt, tilt_angles_deg, tilt_from_accel
 from ..params import NeckParams, resolve_params
-from ..recording import RecordingWriter, write_meta
+from ..recording import TEMPERATURE_COLUMNS, RecordingWriter, write_meta
 from ..targets import target_at, tracking_error_deg
 from ..task import Task, step_info
 from . import protocol as P
@@ -37,7 +37,6 @@ __all__ = ["HardwareNeckEnv", "RECORD_COLUMNS", "RestResult"]
 RECORD_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg",
                   "T1_est", "T2_est", "T3_est", "ax", "ay", "az", "gx", "gy", "gz",
                   "relays", "faults", "target_theta_deg", "target_phi_deg", "t_mcu_ms")
-THERMISTOR_COLUMNS = ("T1", "T2", "T3")
 TELEMETRY_TIMEOUT_S = 0.3  # no telemetry for this long while running: the link is dead
 FIRST_SAMPLE_TIMEOUT_S = 1.0
 MEMORY_SAVE_PERIOD_S = 1.0  # a killed host loses at most this much of the springs' history
@@ -82,7 +81,7 @@ def thermistor_columns(mask: int) -> list[tuple[int, str]]:
     """(muscle index, column) of the fitted thermistors: ``Tk`` for each fitted one (the
     recording format reads any of T1..T3; a reading that fails, open or shorted, is an empty
     cell)."""
-    return [(k, THERMISTOR_COLUMNS[k]) for k in range(3) if mask >> k & 1]
+    return [(k, TEMPERATURE_COLUMNS[k]) for k in range(3) if mask >> k & 1]
 
 
 class HardwareNeckEnv(gym.Env):
