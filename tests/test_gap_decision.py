@@ -13,7 +13,7 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    CREEP_SHARES, CREEP_STARTS, _convection,
                                    _cooling_time_constant,
                                    _creep_rebalanced, _draft_rebalanced, _scan_values, draft_onsets,
-                                   choose_holdout, f_crit, fast_power, responsible, rest_moves,
+                                   _regime, choose_holdout, f_crit, fast_power, responsible, rest_moves,
                                    scan_all_starts, significant, structure_reason, warms)
 from neck_env.effects import apply_to_constants
 from neck_env.gap.model import EFFECT_SPECS, Model, nominal_specs, wire_ratios
@@ -273,6 +273,35 @@ def test_no_held_out_recording_runs_below_the_fitted_supply_currents():
     assert not hold[11]
     assert (P[hold].max(axis=0) <= P[~hold].max(axis=0)).all()  # ... and the upper bound kept
     assert (P[~hold].max(axis=0) > 0).all()
+
+
+def _sequence(pattern):
+    """A recording's currents, 6 A, from a list of per-step sets of powered muscles."""
+    return SimpleNamespace(currents_A=np.array([[6.0 if m in on else 0.0 for m in range(3)]
+                                                for on in pattern]))
+
+
+def test_the_fit_sees_every_regime_the_held_out_recordings_ask_for(monkeypatch):
+    # own wide rig, seed 6005: its three co-activation sequences were all held out by time
+    # alone, so the baseline was fitted to single pulses only. Here they sit at recordings 2,
+    # 5, 8 (of 15), where a third held out by time falls; likewise three repeated cycles
+    single = lambda m: _sequence([(), (m,), (m,), ()])
+    coact = _sequence([(), (0,), (0, 1), (1, 2), (2,), ()])
+    cycles = lambda m: _sequence([(), (m,), (), (m,), (), (m,), ()])
+    muscles = [0, 1, 2, 1, 2, 0, 2, 0, 1, 0, 1, 2, 1, 2, 0]
+    special = [1, 4, 7]
+    for kind in (lambda m: coact, cycles):
+        recs = [kind(m) if k in special else single(m) for k, m in enumerate(muscles)]
+        hold = choose_holdout(SimpleNamespace(recordings=recs))[0]
+        assert hold[special].any() and not hold[special].all()  # held out, and fitted
+        assert 4 <= hold.sum() <= 6
+        # without the regime, time alone holds out every one of them
+        with monkeypatch.context() as mp:
+            mp.setattr("neck_env.gap.diagnose._regime", lambda c: (0, 0))
+            assert choose_holdout(SimpleNamespace(recordings=recs))[0][special].all()
+    assert _regime(coact.currents_A) == (2, 1) and _regime(cycles(0).currents_A) == (1, 3)
+    # a muscle on from the first sample is a pulse
+    assert _regime(np.array([[6.0, 0, 0], [0, 0, 0], [6.0, 0, 0]])) == (1, 2)
 
 
 def test_a_split_already_interpolating_is_left_alone():
