@@ -278,9 +278,11 @@ EFFECT_OFF: dict[str, float] = {
 }
 
 
-def switched_off(setting: Mapping[str, float]) -> dict[str, float]:
-    """``setting`` with its effects at their "off" values (baseline parameters kept)."""
-    return {k: (EFFECT_OFF[k] if k in EFFECT_OFF else v) for k, v in setting.items()}
+def switched_off(setting: Mapping[str, float], names: Sequence[str] | None = None) -> dict[str, float]:
+    """``setting`` with its effects (or only those in ``names``) at their "off" values
+    (baseline parameters and the other effects kept)."""
+    return {k: (EFFECT_OFF[k] if k in EFFECT_OFF and (names is None or split_key(k)[0] in names)
+                else v) for k, v in setting.items()}
 
 
 FIXED_EFFECT_PARAMS = {"supply_limit": {"wiring_ohm": 0.1}}

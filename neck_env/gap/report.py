@@ -110,6 +110,9 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "significant_vs_nominal": bool(D.significant(s)),
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
+            # its own fit with the effect switched off (``diagnose.acts``)
+            "heldout_gap_switched_off": (_r(s.vs_off.gap_before_deg)
+                                         if s.vs_off is not None else None),
             "heldout_theta_rmse_after": _r(g["theta_rmse"]),
             "heldout_phi_rmse_after": _r(g["phi_rmse"]),
             "signature": fx.EFFECTS[c.name].signature,
@@ -131,6 +134,9 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             # top of the first effect (after a responsible single), else on the baseline
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
+            # the pair's fit with the member that matters least switched off
+            "heldout_gap_switched_off": (_r(s.vs_off.gap_before_deg)
+                                         if s.vs_off is not None else None),
             "significant": bool(s.accepted),
             **_warming(s),
         })
