@@ -175,6 +175,26 @@ def _warming(**kw) -> Warming:
     return Warming(**base)
 
 
+def test_an_effect_that_does_nothing_in_its_own_fit_is_not_named():
+    # own wide rig, seed 6002 (effect-free): a coupling fitted at 0 W/K beat the nominal refit
+    # held out -- its baseline had ended elsewhere along a valley of equal fitting cost
+    from neck_env.gap.diagnose import acts
+    better = _cmp()
+    assert responsible(better)  # no switched-off twin: as before
+    idle = _cmp(gap_before_deg=0.40, gap_after_deg=0.40, reduction=0.0, abs_reduction_deg=0.0,
+                F=1.0, t=0.0, blocks_improved=0, recordings_improved=0)
+    assert not acts(replace(better, vs_off=idle))
+    assert not responsible(replace(better, vs_off=idle))
+    # switched off, its own fit is far worse: the effect does the work
+    assert responsible(replace(better, vs_off=_cmp(gap_before_deg=1.2, reduction=2 / 3, F=9.0)))
+    # a coupling whose own evidence is the neighbours' warming acts through it
+    assert acts(replace(better, vs_off=replace(idle, warming=_warming())))
+    # ... and a coupling named on the warming alone is not asked for the tilt
+    weak = _cmp(reduction=0.1, gap_after_deg=0.54, abs_reduction_deg=0.06, F=1.2, t=1.5,
+                warming=_warming(), vs_off=idle)
+    assert responsible(weak)
+
+
 def test_a_neighbours_warming_names_coupling_where_the_tilt_alone_cannot():
     # the tilt evidence falls short (a rig's structural misfit dominates its held-out gap) ...
     weak = _cmp(reduction=0.1, gap_after_deg=0.54, abs_reduction_deg=0.06, F=1.2, t=1.5)
