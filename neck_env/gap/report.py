@@ -110,8 +110,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "significant_vs_nominal": bool(D.significant(s)),
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
-            # its own fit with the effect switched off (``diagnose.acts``)
-            "heldout_gap_switched_off": (_r(s.vs_off.gap_before_deg)
+            # on the fitting recordings: its fit, and that fit with the effect switched off
+            # (``diagnose.acts``)
+            "fitting_gap": _r(s.vs_off.gap_after_deg) if s.vs_off is not None else None,
+            "fitting_gap_switched_off": (_r(s.vs_off.gap_before_deg)
                                          if s.vs_off is not None else None),
             "heldout_theta_rmse_after": _r(g["theta_rmse"]),
             "heldout_phi_rmse_after": _r(g["phi_rmse"]),
@@ -134,8 +136,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             # top of the first effect (after a responsible single), else on the baseline
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
-            # the pair's fit with the member that matters least switched off
-            "heldout_gap_switched_off": (_r(s.vs_off.gap_before_deg)
+            # on the fitting recordings: the pair's fit, and with the member that matters least
+            # switched off
+            "fitting_gap": _r(s.vs_off.gap_after_deg) if s.vs_off is not None else None,
+            "fitting_gap_switched_off": (_r(s.vs_off.gap_before_deg)
                                          if s.vs_off is not None else None),
             "significant": bool(s.accepted),
             **_warming(s),
