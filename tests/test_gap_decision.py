@@ -580,3 +580,24 @@ def test_a_draft_starts_with_fitting_recordings_on_both_sides():
     assert starts == set(float(k) for k in range(2, 14))
     # the temperature form is always scanned (no start: DRAFT_FROM = n)
     assert any(v[DRAFT_FROM] == n and v["convection_change.tcoef_per_K"] > 0 for v in scanned)
+
+
+def test_the_recording_no_model_fits_is_found():
+    # three recordings of 30 s at 10 Hz; the model leaves 5 deg of theta on the second
+    # (own wide seed 6025: a payload tipped the head over in one fitting recording) and
+    # 0.05 deg of noise-like wobble elsewhere
+    from neck_env.gap.diagnose import _worst_recording
+    from neck_env.gap.model import Prediction
+    n = 300
+    t = np.arange(n) * 0.1
+    rng = np.random.default_rng(0)
+    meas = 20.0 + 0.05 * rng.standard_normal(3 * n)
+    meas[n:2 * n] += 5.0
+    data = SimpleNamespace(n_rec=3, fit_rec=np.repeat([0, 1, 2], n),
+                           fit_idx=np.tile(np.arange(n), 3), t=[t, t, t],
+                           meas_theta=meas, meas_phi=np.full(3 * n, 90.0))
+    pred = Prediction(np.zeros(3 * n), np.full(3 * n, 20.0), None)  # theta 20 deg at phi 90
+    r, rms = _worst_recording(data, pred)
+    # the gap's scale: the RMS tilt-vector error over sqrt 2 (a 3 s average loses the ends)
+    assert r == 1 and rms == pytest.approx(5.0 / np.sqrt(2), rel=0.1)
+    assert _worst_recording(SimpleNamespace(n_rec=1), pred) is None
