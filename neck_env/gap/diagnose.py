@@ -21,10 +21,11 @@
    with a consistent improvement, or the paired test (every held-out recording improved and the
    5 s block t > ``T_CRIT``; ``significant``) -- and beats the best structural discrepancy
    (``beats_structure``: by the same test when that discrepancy is itself significant, else by
-   the margin), and does the work itself (``acts``: its own fit with the effect switched off
-   is significantly worse). Then a second effect on top of the first (and on top of each responsible
-   single the first does not significantly beat); with none responsible but a large
-   systematic gap, pairs of the best singles; and effects ``ambiguous`` with a baseline shift.
+   the margin), and takes part in its own fit (``acts``: switched off, that fit is worse on the
+   fitting recordings by the F test). Then a second effect on top of the first (and on top of
+   each responsible single the first does not significantly beat); with none responsible but a
+   large systematic gap, pairs of the best singles; and effects ``ambiguous`` with a baseline
+   shift.
 5. **Conclusion** (``_conclude``): the final model (baseline + verdict) refitted on all
    recordings; parameter uncertainties and identifiability from its Jacobian; localization of
    the nominal and of the remaining residual; ``unexplained`` when a large systematic residual
