@@ -255,8 +255,8 @@ def summarize(results: list[dict]) -> str:
         L.append(f"single effects: top-1 {rate(len(ok1), len(singles))}; ranked first and in the "
                  f"verdict {rate(len(okr), len(singles))} (issue 11's targets: own generator "
                  f">= 85 % wide, top-1 >= 90 % on the default baseline; independent >= 80 %); "
-                 f"verdict exactly the "
-                 f"effect {len(okv)}/{len(singles)} = {100 * len(okv) / len(singles):.0f} %")
+                 f"verdict exactly the effect {len(okv)}/{len(singles)} = "
+                 f"{100 * len(okv) / len(singles):.0f} %")
 
     sized = [r for r in singles if r.get("effect_size_deg") is not None]
     if sized:

@@ -813,7 +813,8 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
 
 
 def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequence[Candidate],
-              single_cmp: dict[str, Comparison], verdict: Sequence[str]) -> list[dict]:
+              single_cmp: dict[str, Comparison], verdict: Sequence[str],
+              offs: dict[str, Prediction]) -> list[dict]:
     """Effects that a shift of the baseline explains about as well (design.md 2.3 ``ambiguous``).
 
     An effect is listed when its own fit makes it do something substantial (its predicted tilt
@@ -829,11 +830,10 @@ def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequenc
              and single_cmp[c.name].gap_after_deg <= (1 + AMBIG_WORSE) * single_cmp[c.name].gap_before_deg]
     if verdict or not cands:
         return []
-    offs = model.predict([switched_off(c.setting()) for c in cands])
     m = fitter.mask
     out = []
-    for c, off in zip(cands, offs):
-        name = c.effects[0]
+    for c in cands:
+        name, off = c.effects[0], offs[c.name]
         size = float(np.sqrt(np.mean((c.pred.tilt_x - off.tilt_x)[m] ** 2
                                      + (c.pred.tilt_y - off.tilt_y)[m] ** 2)))
         if size < AMBIG_SIZE_DEG:
@@ -1208,6 +1208,7 @@ class _Attribution:
     null_cmp: dict[str, Comparison]
     best_null: Candidate | None
     rival: bool  # the best null is itself a significant improvement on the nominal refit
+    offs: dict[str, Prediction]  # each single's own fit with its effect switched off
 
 
 @dataclass
@@ -1292,11 +1293,12 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
     for c in singles:
         settle_draft(model, c, run.hold_rec, hold_mask)
     run.lap("single_fits_s")
-    offs = model.predict([switched_off(c.setting()) for c in singles])
+    offs = dict(zip([c.name for c in singles],
+                    model.predict([switched_off(c.setting()) for c in singles])))
     single_cmp = {c.name: replace(compare_effect(data, nominal.pred, c, hold_mask),
-                                  vs_off=off_compare(data, off, c.pred, run.fit_mask,
+                                  vs_off=off_compare(data, offs[c.name], c.pred, run.fit_mask,
                                                      c.effects[0]))
-                  for c, off in zip(singles, offs)}
+                  for c in singles}
     null_cmp = {c.name: compare(data, nominal.pred, c.pred, hold_mask) for c in nulls}
     nulls.sort(key=lambda c: null_cmp[c.name].gap_after_deg)
     best_null = nulls[0] if nulls and null_cmp[nulls[0].name].reduction > 0 else None
@@ -1323,7 +1325,7 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
                 f"{w.rms_after_C:.2f} C ({100 * w.reduction:+.0f} %, F = {w.F:.1f} > "
                 f"{w.F_crit:.2f}?){'  * warms' if warms(s) else ''}")
     return _Attribution(singles=singles, single_cmp=single_cmp, nulls=nulls, null_cmp=null_cmp,
-                        best_null=best_null, rival=rival)
+                        best_null=best_null, rival=rival, offs=offs)
 
 
 def _profiled(run: _Run, singles: list[Candidate], starts: dict[str, list[dict[str, float]]],
@@ -1451,7 +1453,8 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         if good:
             verdict_c = good[0]
     run.lap("pairs_s")
-    ambiguous = ambiguity(model, fitter, nominal, singles, single_cmp, list(verdict_c.effects))
+    ambiguous = ambiguity(model, fitter, nominal, singles, single_cmp, list(verdict_c.effects),
+                          att.offs)
     for a in ambiguous:
         say(f"  ambiguous: {a['note']}")
     return _Decision(verdict_c=verdict_c, pairs=pairs, pair_cmp=pair_cmp, ambiguous=ambiguous)
