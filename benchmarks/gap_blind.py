@@ -554,8 +554,12 @@ def main(argv=None) -> int:
         ap.error("--resume needs --out (the folder of the interrupted run)")
     if args.effect_free is not None and args.effect_free < 1:
         ap.error(f"--effect-free needs at least one dataset, got {args.effect_free}")
-    suite = [c for c in cases(args.quick, args.first_seed, args.effect_free)
-             if only is None or c[1] in only][:args.datasets]
+    every = cases(args.quick, args.first_seed, args.effect_free)
+    suite = [c for c in every if only is None or c[1] in only][:args.datasets]
+    if not suite:
+        seeds = [c[1] for c in every]
+        ap.error(f"--only {args.only} selects none of this suite's seeds "
+                 f"({min(seeds)}-{max(seeds)}; --first-seed moves them)")
     done: list[dict] = []
     if args.out:
         # what the folder's datasets were drawn with: a resume must draw the rest the same way

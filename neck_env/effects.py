@@ -51,6 +51,9 @@ class Effect:
     defaults: Mapping[str, float] = field(default_factory=dict)  # a typical magnitude
     # Parameters that ``sample`` holds at their default (e.g. a draft's onset: 0 in an episode).
     held: tuple[str, ...] = ()
+    # It changes the springs' temperatures for given commands: thermistors see it even on a
+    # neck that never moves (the diagnosis names only these when nothing actuated).
+    thermal: bool = False
 
     def sample(self, rng: np.random.Generator) -> dict[str, float]:
         """Parameters drawn uniformly within their ranges (``held`` ones at their default)."""
@@ -79,9 +82,9 @@ class Effect:
 
 
 def _effect(name, kind, signature, params, defaults, doc="", in_catalogue=True,
-            held=()) -> Effect:
+            held=(), thermal=False) -> Effect:
     return Effect(name, kind, {k: EffectParam(*v) for k, v in params.items()}, signature,
-                  in_catalogue, doc, defaults, tuple(held))
+                  in_catalogue, doc, defaults, tuple(held), thermal)
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in [
@@ -120,21 +123,21 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
          "wiring_ohm": (0.05, 0.3, "ohm", "leads and relay contact per muscle")},
         {"compliance_V": 4.0, "wiring_ohm": 0.1},
         "Commanded currents are what the host knows; what flows is min(I, V / R_load).",
-        held=()),
+        held=(), thermal=True),
     _effect(
         "actuation_delay", "actuation",
         "every response (theta, temperature) starts late by the same time after a command "
         "edge, at every current and muscle; shapes otherwise unchanged",
         {"delay_s": (0.1, 1.0, "s", "relay + link latency")},
         {"delay_s": 0.3},
-        "Commands take effect late."),
+        "Commands take effect late.", thermal=True),
     _effect(
         "thermal_coupling", "plant",
         "unpowered muscles warm while a neighbour is heated; the heated spring runs slightly "
         "cooler; antagonist pre-warming reduces theta",
         {"conductance_W_K": (0.003, 0.03, "W/K", "heat conductance between each pair of muscles")},
         {"conductance_W_K": 0.01},
-        "Heat exchanged between muscles through the head mount and air."),
+        "Heat exchanged between muscles through the head mount and air.", thermal=True),
     _effect(
         "convection_change", "plant",
         "what no constant convection coefficient produces: cooling fast when hot and slow near "
@@ -148,7 +151,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
                      "at which the draft starts; environments apply it from the episode start")},
         {"gain": 1.5, "tcoef_per_K": 0.0, "onset_s": 0.0},
         "A draft that starts during the experiments, or a temperature-dependent h.",
-        held=("onset_s",)),
+        held=("onset_s",), thermal=True),
     _effect(
         "sma_fatigue", "plant",
         "bending amplitude falls from recording to recording as the springs cycle, most at "

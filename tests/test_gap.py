@@ -562,6 +562,28 @@ def test_blind_third_rig(tmp_path, effects, seed):
     _blind_other_rig(tmp_path, third.generate, third.WIRE_D_M, effects, seed)
 
 
+def test_a_neck_that_never_moved_is_told_from_its_thermistors_or_not_at_all(tmp_path):
+    """The third rig of gap_blind's fresh suite, seed 6027: a supply that cannot drive the
+    springs on a fast-cooling rig, and the neck moves 0.25 deg. Judged on its tilt, which is
+    noise, ``backbone_friction`` was named; the springs' temperatures show the supply limit.
+    Without thermistors nothing can be named, and the report says why."""
+    from neck_env.gap import third
+
+    limit = {"supply_limit": {"compliance_V": 3.425, "wiring_ohm": 0.164}}
+    third.generate(tmp_path / "T", limit, seed=6027, baseline="wide", temperatures=True)
+    rep = _diagnose(tmp_path / "T", tmp_path, "T")
+    _check_contract(rep)
+    act = rep["actuation"]
+    assert not act["actuated"] and act["moved_deg"] < act["threshold_deg"]
+    assert "backbone_friction" not in act["nameable"]
+    assert rep["verdict"] == ["supply_limit"]
+    third.generate(tmp_path / "noT", limit, seed=6027, baseline="wide", temperatures=False)
+    rep = _diagnose(tmp_path / "noT", tmp_path, "noT")
+    assert rep["actuation"]["nameable"] == []
+    assert rep["verdict"] == [] and rep["unexplained"]
+    assert any("did not actuate" in r for r in rep["unexplained_reasons"])
+
+
 # Dataset shapes the blind suites never use (a small faithful version of
 # benchmarks/gap_shapes.py): another IMU rate, four recordings, no meta.json.
 @pytest.mark.parametrize("shape, effect", [("hz100", "imu_misalignment"),

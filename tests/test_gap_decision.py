@@ -601,3 +601,55 @@ def test_the_recording_no_model_fits_is_found():
     # the gap's scale: the RMS tilt-vector error over sqrt 2 (a 3 s average loses the ends)
     assert r == 1 and rms == pytest.approx(5.0 / np.sqrt(2), rel=0.1)
     assert _worst_recording(SimpleNamespace(n_rec=1), pred) is None
+
+
+def _still_or_moving(peak_deg: float, seed: int = 0) -> SimpleNamespace:
+    """Two recordings at 10 Hz of a rig reading 0.3 deg off upright with 0.02 deg of noise: a
+    pulse at 2 s in the first bends it toward 30 deg azimuth by ``peak_deg``; nothing in the
+    second moves."""
+    from neck_env.gap.model import Prepared
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    t = np.arange(n) * 0.1
+    cmd0 = np.zeros((5 * n, 3))
+    cmd0[(np.arange(5 * n) * 0.02 >= 2.0) & (np.arange(5 * n) * 0.02 < 7.0), 0] = 6.0
+    bend = np.where(t >= 2.0, peak_deg * np.sin(np.clip((t - 2.0) / 10.0, 0, 1) * np.pi), 0.0)
+    x = np.concatenate([0.3 + bend * np.cos(np.pi / 6), np.full(n, 0.3)])
+    y = np.concatenate([bend * np.sin(np.pi / 6), np.zeros(n)])
+    x, y = x + rng.normal(0, 0.02, 2 * n), y + rng.normal(0, 0.02, 2 * n)
+    data = SimpleNamespace(fit_rec=np.repeat([0, 1], n), fit_idx=np.tile(np.arange(n) * 5, 2),
+                           cmd=[cmd0, np.zeros((5 * n, 3))], n_rec=2,
+                           meas_theta=np.hypot(x, y), meas_phi=np.degrees(np.arctan2(y, x)))
+    data.rec_slices = lambda: [np.arange(n), np.arange(n, 2 * n)]
+    data.powered_so_far = Prepared.powered_so_far.func(data)
+    data.before_first_pulse = Prepared.before_first_pulse.func(data)
+    return data
+
+
+def test_how_far_the_neck_moved_is_read_from_its_rest_not_from_upright():
+    from neck_env.gap.diagnose import NO_ACTUATION_DEG, actuation_deg
+
+    # a 5 deg bend is read as 5 deg (the 99th percentile sits on its flat top, within the
+    # noise), though the rig reads 0.3 deg at rest
+    assert actuation_deg(_still_or_moving(5.0)) == pytest.approx(5.0, abs=0.1)
+    # a rig that never moves reads its noise and its 0.3 deg offset not at all
+    still = actuation_deg(_still_or_moving(0.0))
+    assert still < 0.1 < NO_ACTUATION_DEG
+    # the threshold is a tenth of the paper's smallest response (Table 1: 4.73 deg at 4 A)
+    from neck_env.calibration import TABLE1
+    assert NO_ACTUATION_DEG == pytest.approx(min(m for _, m in TABLE1) / 10, abs=0.05)
+
+
+def test_a_neck_that_never_moved_names_only_what_the_thermistors_see():
+    from neck_env import effects as fx
+    from neck_env.gap.diagnose import NO_ACTUATION_DEG, nameable
+
+    with_T, without_T = SimpleNamespace(has_T=True), SimpleNamespace(has_T=False)
+    assert nameable(with_T, 5.0) == nameable(without_T, 5.0) == tuple(fx.CATALOGUE)
+    assert nameable(without_T, 0.3) == ()
+    heat = nameable(with_T, NO_ACTUATION_DEG - 0.01)
+    # what changes the springs' temperatures for given commands; nothing that acts only on
+    # the bend (a payload, friction, creep, fatigue's lost strain) or on the IMU
+    assert set(heat) == {"supply_limit", "actuation_delay", "thermal_coupling",
+                         "convection_change"}

@@ -71,6 +71,9 @@ PAIR_TIED = 2  # forward steps also from this many responsible singles tied with
 UNEXPLAINED_ABS_DEG = 0.3  # systematic held-out residual (after the final model) above this
 UNEXPLAINED_REL = 0.05  # ... and above this fraction of the RMS measured tilt
 UNEXPLAINED_REST_DEG = 0.3  # rest reading moving by more than this: RMS between recordings ...
+# the neck moved no further than this from its rest reading in any recording: the springs did
+# not actuate. A tenth of the paper's smallest response (Table 1: 4.73 deg at 4 A), rounded
+NO_ACTUATION_DEG = 0.5
 DRIFT_R2 = 0.6  # ... or first to last along a straight line in recorded time this steady: a drift
 SCAN_SENSOR = 96  # scan points for sensor-only effects (no simulation needed)
 SCAN_GRID = {1: 5, 2: 3}  # per-axis scan points for plant effects with 1 or 2 parameters
@@ -284,8 +287,8 @@ def f_crit(n_eff: float) -> float:
 
 @dataclass(frozen=True)
 class Warming:
-    """Held-out thermistor residual of the cold neighbours (``Prepared.cold_neighbours``): "after"
-    against the reference "before"."""
+    """Held-out thermistor residual of two models, "after" against the reference "before": of
+    the cold neighbours (``warming_compare``), or of every reading (``thermistor_compare``)."""
 
     rms_before_C: float
     rms_after_C: float
@@ -447,6 +450,12 @@ def warms(c: Comparison) -> bool:
 
 def neighbours_warm(w: Warming | None) -> bool:
     """The temperature half of ``warms``: the cold neighbours warm as the effect predicts."""
+    return temperatures_fit(w)
+
+
+def temperatures_fit(w: Warming | None) -> bool:
+    """A thermistor comparison (``thermistor_compare``) favours the "after" model: by the F
+    test and by a practical margin (``WARMING_MIN_REL``, ``WARMING_MIN_ABS_C``)."""
     return (w is not None and w.F > w.F_crit and w.reduction >= WARMING_MIN_REL
             and w.abs_reduction_C >= WARMING_MIN_ABS_C)
 
@@ -481,9 +490,15 @@ def warming_compare(data: Prepared, before: Prediction, after: Prediction,
     to its reading before the first pulse (``rise_residual``) (None: no thermistors, or no
     cold neighbour among the held-out samples)."""
     cold = data.cold_neighbours
-    if cold is None:
-        return None
-    sel = cold & mask[:, None]
+    return None if cold is None else thermistor_compare(data, before, after, cold & mask[:, None])
+
+
+def thermistor_compare(data: Prepared, before: Prediction, after: Prediction,
+                       sel: np.ndarray) -> Warming | None:
+    """The thermistor residual of two fitted models on the (M, 3) samples x channels ``sel``,
+    each referenced to its reading before the first pulse (``rise_residual``) (None: fewer than
+    10 readings)."""
+    mask = sel.any(axis=1)
     if sel.sum() < 10:
         return None
     e0 = np.where(sel, rise_residual(data, before), 0.0)
@@ -966,6 +981,7 @@ class Diagnosis:
     absorption: list = field(default_factory=list)  # ``absorption``: per effect, what a baseline shift hides
     nulls: list = field(default_factory=list)  # generic structural discrepancies, best first
     null_cmp: dict[str, Comparison] = field(default_factory=dict)
+    moved_deg: float = math.inf  # ``actuation_deg``: below ``NO_ACTUATION_DEG`` nothing actuated
 
 
 def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
@@ -1170,6 +1186,39 @@ def smooth_rms(e: np.ndarray, t: np.ndarray, window_s: float = 3.0,
     return np.convolve(e, k, mode="same") / den
 
 
+def nameable(data: Prepared, moved_deg: float) -> tuple[str, ...]:
+    """The catalogued effects a verdict may name: all of them on a neck that moved; on one that
+    did not (``actuation_deg`` below ``NO_ACTUATION_DEG``) only those that change the springs'
+    temperatures (``Effect.thermal``), and only when thermistors were recorded. A neck that
+    never moves is fitted as well by springs that never reach their transformation (fast
+    cooling, a high A_s) as by any mechanical effect: independent and third rigs whose supply
+    could not drive their springs (0.25-0.46 deg) had ``backbone_friction`` named, while the
+    own rig's heating told a supply limit and a coupling apart on a neck that moved 0.7 deg."""
+    if moved_deg >= NO_ACTUATION_DEG:
+        return tuple(fx.CATALOGUE)
+    return tuple(n for n in fx.CATALOGUE if fx.EFFECTS[n].thermal) if data.has_T else ()
+
+
+def actuation_deg(data: Prepared) -> float:
+    """How far the neck moved: the largest, over recordings, 99th percentile of the measured
+    tilt vector's distance from the recording's reading at rest (its median before the first
+    pulse; the whole recording's median without such a rest). Below ``NO_ACTUATION_DEG`` the
+    springs never actuated, and no effect can be told from another (``_decide``)."""
+    x, y = tilt_vec(data.meas_theta, data.meas_phi)
+    moved = 0.0
+    for rows in data.rec_slices():
+        ok = np.isfinite(x[rows]) & np.isfinite(y[rows])
+        if not ok.any():
+            continue
+        rest = ok & data.before_first_pulse[rows]
+        if rest.sum() < MIN_REFERENCE_SAMPLES:
+            rest = ok
+        rx, ry = x[rows][ok], y[rows][ok]
+        d = np.hypot(rx - np.median(x[rows][rest]), ry - np.median(y[rows][rest]))
+        moved = max(moved, float(np.percentile(d, 99)))
+    return moved
+
+
 @dataclass
 class _Run:
     """What every phase of one diagnosis shares: the data, the model, the split, the fitter."""
@@ -1184,6 +1233,7 @@ class _Run:
     rng: np.random.Generator
     say: Callable[..., None]
     max_iter: int
+    moved_deg: float = math.inf  # ``actuation_deg``
     t0: float = field(default_factory=time.perf_counter)
     timing: dict[str, float] = field(default_factory=dict)
 
@@ -1232,7 +1282,8 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = F
     fit_mask, hold_mask = sample_masks(data, hold_rec)
     run = _Run(data=data, model=model, hold_rec=hold_rec, split_note=note, fit_mask=fit_mask,
                hold_mask=hold_mask, fitter=Fitter(model, fit_mask), rng=np.random.default_rng(0),
-               say=log or (lambda *a: None), max_iter=max_iter, t0=t0)
+               say=log or (lambda *a: None), max_iter=max_iter, moved_deg=actuation_deg(data),
+               t0=t0)
     run.say(f"{data.n_rec} recordings, {note}; ambient {data.ambient:.1f} C ({data.ambient_source})"
             f"{'; temperatures recorded' + _readings_note(data) if data.has_T else ''}")
     base = _calibrate(run)
@@ -1355,6 +1406,17 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
     systematic gap, pairs of the best singles; then what is ambiguous with a baseline shift."""
     data, model, fitter, say = run.data, run.model, run.fitter, run.say
     singles, single_cmp, best_null = att.singles, att.single_cmp, att.best_null
+    allowed = nameable(data, run.moved_deg)
+    if len(allowed) < len(fx.CATALOGUE):
+        say(f"  the neck moved at most {run.moved_deg:.2f} deg from rest in any recording "
+            f"(< {NO_ACTUATION_DEG} deg): the springs did not actuate; "
+            + (f"only effects the thermistors see can be named ({', '.join(allowed)})"
+               if allowed else "no effect can be named without thermistors"))
+    singles = [c for c in singles if c.effects[0] in allowed]
+    if len(allowed) < len(fx.CATALOGUE):
+        good = _named_on_temperatures(run, nominal, att, singles)
+        return _Decision(verdict_c=good[0] if good else nominal, pairs=[], pair_cmp={},
+                         ambiguous=[])
     sig = [c for c in singles if responsible(single_cmp[c.name])]
     verdict_c: Candidate = nominal
     pairs: list[Candidate] = []
@@ -1372,7 +1434,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         seen: set[frozenset[str]] = set()
         for base in [single] + tied:
             b = base.effects[0]
-            others = [n for n in fx.CATALOGUE if n != b and frozenset((b, n)) not in seen]
+            others = [n for n in allowed if n != b and frozenset((b, n)) not in seen]
             seen.update(frozenset((b, n)) for n in others)
             starts2 = scan_starts(model, fitter, base.setting(), [b], others, run.rng)
             for n in others:
@@ -1460,6 +1522,41 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
     return _Decision(verdict_c=verdict_c, pairs=pairs, pair_cmp=pair_cmp, ambiguous=ambiguous)
 
 
+def _named_on_temperatures(run: _Run, nominal: Candidate, att: _Attribution,
+                           singles: Sequence[Candidate]) -> list[Candidate]:
+    """On a neck that never moved (``nameable``) the tilt is noise, so the evidence must be in
+    the springs' temperatures, and held to the tilt's rules: the held-out thermistor residual
+    falls against the nominal refit (``temperatures_fit``), and against the generic structural
+    discrepancy that fits the temperatures best when that one does too; and the effect's own
+    fit is worse on the fitting recordings' temperatures with it switched off (``acts``).
+    Returns the effects that pass, best first (none without thermistors)."""
+    if not run.data.has_T or not singles:
+        return []
+    data, say = run.data, run.say
+    held, fitting = data.T_read & run.hold_mask[:, None], data.T_read & run.fit_mask[:, None]
+    heat = {c.name: thermistor_compare(data, nominal.pred, c.pred, held)
+            for c in [*singles, *att.nulls]}
+    rivals = sorted((c for c in att.nulls if temperatures_fit(heat[c.name])),
+                    key=lambda c: heat[c.name].rms_after_C)
+    good = []
+    for c in singles:
+        w = heat[c.name]
+        ok = (temperatures_fit(w)
+              and (not rivals or temperatures_fit(thermistor_compare(data, rivals[0].pred,
+                                                                     c.pred, held)))
+              and temperatures_fit(thermistor_compare(data, att.offs[c.name], c.pred, fitting)))
+        if ok:
+            good.append(c)
+        if w is not None:
+            say(f"  {c.name:26s} held-out temperatures {w.rms_before_C:.2f} -> "
+                f"{w.rms_after_C:.2f} C ({100 * w.reduction:+.0f} %, F = {w.F:.1f} > "
+                f"{w.F_crit:.2f}?){'  *' if ok else ''}")
+    if rivals:
+        say(f"  {rivals[0].name:26s} held-out temperatures {heat[rivals[0].name].rms_after_C:.2f} C"
+            f"  [generic structural discrepancy]")
+    return sorted(good, key=lambda c: heat[c.name].rms_after_C)
+
+
 def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> Diagnosis:
     """5. Final fits on all recordings (nominal and corrected), uncertainties, localization,
     what remains unexplained."""
@@ -1493,6 +1590,15 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
     # unexplained: a large systematic residual left (held-out, verdict model), or a reading at
     # rest that drifts between recordings (no catalogued effect changes the rest reading)
     reasons = []
+    if run.moved_deg < NO_ACTUATION_DEG and not verdict:
+        reasons.append(f"the neck moved at most {run.moved_deg:.2f} deg from its rest reading in "
+                       f"any recording (the paper's 4 A pulse moves it 4.7 deg): the springs did "
+                       f"not actuate, and "
+                       + ("only effects seen in the springs' temperatures could be named"
+                          if data.has_T else "without thermistors no effect can be told from "
+                          "another")
+                       + ". Check the supply (its voltage under load), the relays and wiring, "
+                       "and that the springs reach their transformation temperature")
     sys_rms = _systematic_rms(data, verdict_c.pred, hold_mask)
     scale = float(np.sqrt(np.mean(data.meas_theta[hold_mask] ** 2)))
     sys_tol = _unexplained_tol(data, hold_mask)
@@ -1538,7 +1644,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                      full={"nominal": full_nom, "corrected": full_cor,
                            "nominal_heldout": base.full_plain}, timing=run.timing,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp,
-                     absorption=absorbed)
+                     absorption=absorbed, moved_deg=run.moved_deg)
 
 
 def ranked(singles: Sequence[Candidate], verdict: Sequence[str]) -> list[Candidate]:

@@ -206,6 +206,11 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "calibration": dict(dg.calibration, h_default_W_m2K=dg.model.base.thermal.convection_W_m2K),
         "ambient": {"value_C": data.ambient, "source": data.ambient_source},
         "temperatures_used": bool(data.has_T),
+        # below the threshold the springs never actuated: only effects the thermistors see
+        # (``effects.Effect.thermal``) may be named, on the temperatures' evidence
+        "actuation": {"moved_deg": _r(dg.moved_deg), "threshold_deg": D.NO_ACTUATION_DEG,
+                      "actuated": bool(dg.moved_deg >= D.NO_ACTUATION_DEG),
+                      "nameable": list(D.nameable(data, dg.moved_deg))},
         "temperature_readings": {k: _r(v, 4) for k, v in data.T_read_share.items()},
         "method": {
             "gap": "RMSE over held-out samples of theta (deg) and phi weighted by "
