@@ -53,6 +53,19 @@ def _warming(s: "D.Comparison") -> dict:
         "n_eff": _r(w.n_eff, 1), "samples": w.samples, "warms": bool(D.warms(s))}}
 
 
+def _temperatures(s: "D.Comparison") -> dict:
+    """Every held-out thermistor reading (``D.temperature_evidence``): a thermal effect's
+    evidence beyond the tilt (``D.heats``), when compared."""
+    w, v = s.temperatures, s.temperatures_vs_structure
+    if w is None:
+        return {}
+    return {"heldout_T": {
+        "rms_before_C": _r(w.rms_before_C), "rms_after_C": _r(w.rms_after_C),
+        "reduction": _r(w.reduction), "F": _r(w.F, 3), "F_crit": _r(w.F_crit, 3),
+        "reduction_vs_structure": None if v is None else _r(v.reduction),
+        "F_vs_structure": None if v is None else _r(v.F, 3), "fits": bool(D.heats(s))}}
+
+
 def _activation_line(L: list[str], pattern: dict, prefix: str, remaining: bool = False) -> None:
     """The tilt residual with one muscle warm against several (``localize.warm_muscles``);
     ``remaining``: of the verdict model, which says what that concentration means."""
@@ -70,7 +83,15 @@ def _activation_line(L: list[str], pattern: dict, prefix: str, remaining: bool =
 
 
 def _warming_line(L: list[str], entry: dict) -> None:
-    """The cold neighbours' temperatures under an effect's or a pair's line, when compared."""
+    """The held-out temperatures under an effect's or a pair's line, when compared: all of them
+    (a thermal effect) and the cold neighbours'."""
+    t = entry.get("heldout_T")
+    if t:
+        vs = ("" if t["reduction_vs_structure"] is None
+              else f"; {100 * t['reduction_vs_structure']:+.0f} % vs the structure")
+        L.append(f"    {'':25s} springs' temperatures {t['rms_before_C']:.2f} -> "
+                 f"{t['rms_after_C']:.2f} C ({100 * t['reduction']:+.0f} %, F {t['F']:.2f} "
+                 f"vs {t['F_crit']:.2f}{vs}){': the effect explains them' if t['fits'] else ''}")
     w = entry.get("heldout_cold_neighbours_T")
     if w:
         L.append(f"    {'':25s} unpowered springs' temperature {w['rms_before_C']:.2f} -> "
@@ -119,6 +140,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_phi_rmse_after": _r(g["phi_rmse"]),
             "signature": fx.EFFECTS[c.name].signature,
             **_warming(s),
+            **_temperatures(s),
         })
     pairs = []
     for p in dg.pairs:
