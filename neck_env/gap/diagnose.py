@@ -1237,7 +1237,7 @@ def actuation_deg(data: Prepared) -> float:
     """How far the neck moved: the largest, over recordings, 99th percentile of the measured
     tilt vector's distance from the recording's reading at rest (its median before the first
     pulse; the whole recording's median without such a rest). Below ``NO_ACTUATION_DEG`` the
-    springs never actuated, and no effect can be told from another (``_decide``)."""
+    springs never actuated, and only what the thermistors see can be named (``nameable``)."""
     x, y = tilt_vec(data.meas_theta, data.meas_phi)
     moved = 0.0
     for rows in data.rec_slices():
@@ -1458,9 +1458,8 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
             f"(< {NO_ACTUATION_DEG} deg): the springs did not actuate; "
             + (f"only effects the thermistors see can be named ({', '.join(allowed)})"
                if allowed else "no effect can be named without thermistors"))
-    singles = [c for c in singles if c.effects[0] in allowed]
-    if len(allowed) < len(fx.CATALOGUE):
-        good = _named_on_temperatures(run, nominal, att, singles)
+        good = _named_on_temperatures(run, nominal, att,
+                                      [c for c in singles if c.effects[0] in allowed])
         return _Decision(verdict_c=good[0] if good else nominal, pairs=[], pair_cmp={},
                          ambiguous=[])
     sig = [c for c in singles if responsible(single_cmp[c.name])]
@@ -1489,7 +1488,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         seen: set[frozenset[str]] = set()
         for base in [single] + tied:
             b = base.effects[0]
-            others = [n for n in allowed if n != b and frozenset((b, n)) not in seen]
+            others = [n for n in fx.CATALOGUE if n != b and frozenset((b, n)) not in seen]
             seen.update(frozenset((b, n)) for n in others)
             starts2 = scan_starts(model, fitter, base.setting(), [b], others, run.rng)
             for n in others:
