@@ -457,7 +457,7 @@ def acts(c: Comparison) -> bool:
 def switching_off_matters(o: Comparison) -> bool:
     """Its fit beats itself switched off (``off_compare``) by the F test, on the tilt or on the
     cold neighbours' warming."""
-    return o.F > o.F_crit or neighbours_warm(o.warming)
+    return o.F > o.F_crit or temperatures_fit(o.warming)
 
 
 def off_compare(data: Prepared, off: Prediction, on: Prediction, mask: np.ndarray,
@@ -479,17 +479,13 @@ def warms(c: Comparison) -> bool:
     baseline shift or structural discrepancy can give (they leave an unpowered spring at
     ambient). A tilt a few per cent worse is noise beside it; a significantly worse one says
     another effect is in the tilt, which the pairs then look for."""
-    return neighbours_warm(c.warming) and c.F * c.F_crit >= 1.0
-
-
-def neighbours_warm(w: Warming | None) -> bool:
-    """The temperature half of ``warms``: the cold neighbours warm as the effect predicts."""
-    return temperatures_fit(w)
+    return temperatures_fit(c.warming) and c.F * c.F_crit >= 1.0
 
 
 def temperatures_fit(w: Warming | None) -> bool:
-    """A thermistor comparison (``thermistor_compare``) favours the "after" model: by the F
-    test and by a practical margin (``WARMING_MIN_REL``, ``WARMING_MIN_ABS_C``)."""
+    """A thermistor comparison (``thermistor_compare``; the cold neighbours' in ``warms``)
+    favours the "after" model: by the F test and by a practical margin (``WARMING_MIN_REL``,
+    ``WARMING_MIN_ABS_C``)."""
     return (w is not None and w.F > w.F_crit and w.reduction >= WARMING_MIN_REL
             and w.abs_reduction_C >= WARMING_MIN_ABS_C)
 
@@ -1458,8 +1454,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
             f"(< {NO_ACTUATION_DEG} deg): the springs did not actuate; "
             + (f"only effects the thermistors see can be named ({', '.join(allowed)})"
                if allowed else "no effect can be named without thermistors"))
-        good = _named_on_temperatures(run, nominal, att,
-                                      [c for c in singles if c.effects[0] in allowed])
+        good = _named_on_temperatures(run, att, [c for c in singles if c.effects[0] in allowed])
         return _Decision(verdict_c=good[0] if good else nominal, pairs=[], pair_cmp={},
                          ambiguous=[])
     sig = [c for c in singles if responsible(single_cmp[c.name])]
@@ -1542,7 +1537,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         top = singles[:PAIR_SEARCH]
         tried = ([(top[i], top[j]) for i in range(len(top)) for j in range(i + 1, len(top))]
                  if large else [])
-        for w in [c for c in singles if neighbours_warm(single_cmp[c.name].warming)]:
+        for w in [c for c in singles if temperatures_fit(single_cmp[c.name].warming)]:
             have = {frozenset((x.name, y.name)) for x, y in tried}
             tried += [(a, w) for a in top
                       if a is not w and frozenset((a.name, w.name)) not in have]
@@ -1576,31 +1571,21 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
     return _Decision(verdict_c=verdict_c, pairs=pairs, pair_cmp=pair_cmp, ambiguous=ambiguous)
 
 
-def _named_on_temperatures(run: _Run, nominal: Candidate, att: _Attribution,
+def _named_on_temperatures(run: _Run, att: _Attribution,
                            singles: Sequence[Candidate]) -> list[Candidate]:
     """On a neck that never moved (``nameable``) the tilt is noise, so the evidence must be in
-    the springs' temperatures, and held to the tilt's rules: the held-out thermistor residual
-    falls against the nominal refit and against the structural discrepancy that fits the
-    temperatures best when that one does too (``temperature_evidence``), and the effect's own
-    fit is worse on the fitting recordings' temperatures with it switched off (``acts``).
-    Returns the effects that pass, best first (none without thermistors)."""
-    data = run.data
-    heat = temperature_evidence(data, nominal.pred, singles, att.nulls, run.hold_mask)
-    if not heat:
+    the springs' temperatures, and held to the tilt's rules: the held-out temperatures that
+    ``_attribute`` compared (``heats``: against the nominal refit and the structural
+    discrepancy that fits them best), and the effect's own fit worse on the fitting
+    recordings' temperatures with it switched off (``acts``). Returns the effects that pass,
+    best first (none without thermistors)."""
+    if not run.data.has_T:
         return []
-    fitting = data.T_read & run.fit_mask[:, None]
-    good = []
-    for c in singles:
-        w, w_vs = heat[c.name]
-        ok = (temperatures_fit(w) and (w_vs is None or temperatures_fit(w_vs))
-              and temperatures_fit(thermistor_compare(data, att.offs[c.name], c.pred, fitting)))
-        if ok:
-            good.append(c)
-        if w is not None:
-            run.say(f"  {c.name:26s} held-out temperatures {w.rms_before_C:.2f} -> "
-                    f"{w.rms_after_C:.2f} C ({100 * w.reduction:+.0f} %, F = {w.F:.1f} > "
-                    f"{w.F_crit:.2f}?){'  *' if ok else ''}")
-    return sorted(good, key=lambda c: heat[c.name][0].rms_after_C)
+    fitting = run.data.T_read & run.fit_mask[:, None]
+    good = [c for c in singles if heats(att.single_cmp[c.name]) and temperatures_fit(
+        thermistor_compare(run.data, att.offs[c.name], c.pred, fitting))]
+    run.say(f"  named on the springs' temperatures: {', '.join(c.name for c in good) or 'none'}")
+    return sorted(good, key=lambda c: att.single_cmp[c.name].temperatures.rms_after_C)
 
 
 def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> Diagnosis:

@@ -47,10 +47,14 @@ def _warming(s: "D.Comparison") -> dict:
     w = s.warming
     if w is None:
         return {}
-    return {"heldout_cold_neighbours_T": {
-        "rms_before_C": _r(w.rms_before_C), "rms_after_C": _r(w.rms_after_C),
-        "reduction": _r(w.reduction), "F": _r(w.F, 3), "F_crit": _r(w.F_crit, 3),
-        "n_eff": _r(w.n_eff, 1), "samples": w.samples, "warms": bool(D.warms(s))}}
+    return {"heldout_cold_neighbours_T": {**_thermistors(w), "n_eff": _r(w.n_eff, 1),
+                                          "samples": w.samples, "warms": bool(D.warms(s))}}
+
+
+def _thermistors(w: "D.Warming") -> dict:
+    """The figures every thermistor comparison reports."""
+    return {"rms_before_C": _r(w.rms_before_C), "rms_after_C": _r(w.rms_after_C),
+            "reduction": _r(w.reduction), "F": _r(w.F, 3), "F_crit": _r(w.F_crit, 3)}
 
 
 def _temperatures(s: "D.Comparison") -> dict:
@@ -60,9 +64,7 @@ def _temperatures(s: "D.Comparison") -> dict:
     if w is None:
         return {}
     return {"heldout_T": {
-        "rms_before_C": _r(w.rms_before_C), "rms_after_C": _r(w.rms_after_C),
-        "reduction": _r(w.reduction), "F": _r(w.F, 3), "F_crit": _r(w.F_crit, 3),
-        "reduction_vs_structure": None if v is None else _r(v.reduction),
+        **_thermistors(w), "reduction_vs_structure": None if v is None else _r(v.reduction),
         "F_vs_structure": None if v is None else _r(v.F, 3), "fits": bool(D.heats(s))}}
 
 
