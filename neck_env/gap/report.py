@@ -129,6 +129,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_n_eff": _r(s.n_eff, 1),
             "heldout_blocks_improved": f"{s.blocks_improved}/{s.blocks}",
             "heldout_recordings_improved": f"{s.recordings_improved}/{s.recordings}",
+            # the held-out recordings as units (``diagnose.by_recordings``)
+            "heldout_recording_reduction_median": _r(s.rec_reduction_median),
+            "heldout_recording_t": _r(s.rec_t, 2),
+            "heldout_recording_abs_reduction_median": _r(s.rec_abs_reduction_median_deg),
             "significant": bool(D.responsible(s)),
             "significant_vs_nominal": bool(D.significant(s)),
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
