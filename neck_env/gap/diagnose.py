@@ -375,8 +375,7 @@ def compare(data: Prepared, before: Prediction, after: Prediction, mask: np.ndar
     d = (np.bincount(inv, e0) - np.bincount(inv, e1)) / cnt
     g0, g1 = math.sqrt(e0.mean()), math.sqrt(e1.mean())
     n = d.size
-    sd = float(d.std(ddof=1)) if n > 1 else math.inf
-    t = float(d.mean() / (sd / math.sqrt(n))) if sd > 0 else (math.inf if d.mean() > 0 else 0.0)
+    t = _t_stat(d)
     n_eff = min(heldout_neff(data, before, mask), heldout_neff(data, after, mask))
     F = (g0 / g1) ** 2 if g1 > 0 else math.inf
     F_crit = f_crit(n_eff)
@@ -391,16 +390,21 @@ def compare(data: Prepared, before: Prediction, after: Prediction, mask: np.ndar
     per0, per1 = np.bincount(rinv, e0) / rcnt, np.bincount(rinv, e1) / rcnt
     rms0, rms1 = np.sqrt(per0), np.sqrt(per1)
     rec_red = 1.0 - rms1 / np.maximum(rms0, 1e-300)
-    rec_sd = float(rec_red.std(ddof=1)) if rec_red.size > 1 else math.inf
-    rec_t = (float(rec_red.mean() / (rec_sd / math.sqrt(rec_red.size))) if rec_sd > 0
-             else (math.inf if rec_red.mean() > 0 else 0.0))
     return Comparison(gap_before_deg=g0, gap_after_deg=g1,
                       reduction=(g0 - g1) / g0 if g0 > 0 else 0.0, abs_reduction_deg=g0 - g1,
                       t=t, blocks=int(n), blocks_improved=int((d > 0).sum()),
                       recordings=int(ur.size), recordings_improved=int((per1 < per0).sum()),
                       n_eff=n_eff, F=F, F_crit=F_crit, noise_deg=noise,
-                      rec_reduction_median=float(np.median(rec_red)), rec_t=rec_t,
+                      rec_reduction_median=float(np.median(rec_red)), rec_t=_t_stat(rec_red),
                       rec_abs_reduction_median_deg=float(np.median(rms0 - rms1)))
+
+
+def _t_stat(x: np.ndarray) -> float:
+    """One-sample t of ``x`` against zero; a constant positive ``x`` is infinitely sure and a
+    single value unsure (scipy's ttest_1samp gives NaN for both)."""
+    sd = float(x.std(ddof=1)) if x.size > 1 else math.inf
+    return float(x.mean() / (sd / math.sqrt(x.size))) if sd > 0 else (
+        math.inf if x.mean() > 0 else 0.0)
 
 
 def fast_power(data: Prepared, pred: Prediction, mask: np.ndarray,
