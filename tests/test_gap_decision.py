@@ -204,6 +204,27 @@ def test_responsible_also_beats_the_best_structural_discrepancy():
     assert not responsible(replace(c, vs_structure=worse, structure_significant=False))
 
 
+def test_an_effect_on_top_of_the_structure_beats_it_nested():
+    # a rig with both a structural misfit and an effect: each alone leaves the other's part, so
+    # the effect alone ties with the discrepancy alone (independent rig 6028, a 0.29 s delay
+    # against the latent-heat discrepancy: 0.565 against 0.635 deg, 17 % on the median
+    # recording), but fitted on top of it, it still removes its share
+    c = _cmp()
+    tie = _cmp(gap_before_deg=0.41, reduction=0.01, abs_reduction_deg=0.01, F=1.02, t=0.3,
+               recordings_improved=3)
+    for rival in (True, False):
+        alone = replace(c, vs_structure=tie, structure_significant=rival)
+        assert not responsible(alone)
+        assert responsible(replace(alone, on_structure=_cmp()))
+        # ... and when it adds nothing on top of the discrepancy, the discrepancy explains it
+        # (third rig 6026: a creep on top of the stress asymmetry, -2 %)
+        assert not responsible(replace(alone, on_structure=tie))
+    # the nested route does not stand in for significance against the nominal refit
+    weak = _cmp(reduction=0.05, F=1.1, t=0.5, recordings_improved=2, rec_reduction_median=0.05)
+    assert not responsible(replace(weak, vs_structure=tie, structure_significant=True,
+                                   on_structure=_cmp()))
+
+
 # --- the held-out split: interpolation, not extrapolation -----------------------------------
 
 def _split(peaks):

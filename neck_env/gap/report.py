@@ -51,6 +51,17 @@ def _warming(s: "D.Comparison") -> dict:
                                           "samples": w.samples, "warms": bool(D.warms(s))}}
 
 
+def _on_structure(s: D.Comparison) -> dict:
+    o = s.on_structure
+    if o is None:
+        return {}
+    return {"on_structure": {"heldout_gap_structure": _r(o.gap_before_deg),
+                             "heldout_gap_after": _r(o.gap_after_deg),
+                             "heldout_reduction": _r(o.reduction),
+                             "heldout_recording_reduction_median": _r(o.rec_reduction_median),
+                             "significant": bool(D.significant(o))}}
+
+
 def _thermistors(w: "D.Warming") -> dict:
     """The figures every thermistor comparison reports."""
     return {"rms_before_C": _r(w.rms_before_C), "rms_after_C": _r(w.rms_after_C),
@@ -137,6 +148,9 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "significant_vs_nominal": bool(D.significant(s)),
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
+            # fitted on top of that structural discrepancy, where the plain comparison failed
+            # (``diagnose.beats_structure``, nested)
+            **_on_structure(s),
             # on the fitting recordings: its fit, and that fit with the effect switched off
             # (``diagnose.acts``)
             "fitting_gap": _r(s.vs_off.gap_after_deg) if s.vs_off is not None else None,
