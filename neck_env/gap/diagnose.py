@@ -1448,13 +1448,13 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
                                       vs_structure=compare(data, best_null.pred, c.pred, hold_mask),
                                       structure_significant=rival)
                       for c in singles}
-    if best_null is not None:
-        single_cmp = _on_structure(run, singles, single_cmp, best_null)
     heat = temperature_evidence(data, nominal.pred,
                                 [c for c in singles if fx.EFFECTS[c.effects[0]].thermal],
                                 nulls, hold_mask)
     for name, (w, w_vs) in heat.items():
         single_cmp[name] = replace(single_cmp[name], temperatures=w, temperatures_vs_structure=w_vs)
+    if best_null is not None:
+        single_cmp = _on_structure(run, singles, single_cmp, best_null)
     singles.sort(key=lambda c: single_cmp[c.name].gap_after_deg)
     for c in singles:
         s = single_cmp[c.name]
@@ -1482,11 +1482,12 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
 def _on_structure(run: _Run, singles: Sequence[Candidate], single_cmp: dict[str, Comparison],
                   best_null: Candidate) -> dict[str, Comparison]:
     """Each effect significant against the nominal refit, taking part in its fit, that fails
-    the plain comparison with the best structural discrepancy: refitted on top of that
+    the plain comparison with the best structural discrepancy (and is not past it on the
+    springs' temperatures, ``heats``): refitted on top of that
     discrepancy (from its own fit, the discrepancy where its fit left it) and compared with
     the discrepancy alone (``Comparison.on_structure``, ``beats_structure``)."""
     todo = [c for c in singles if significant(single_cmp[c.name]) and acts(single_cmp[c.name])
-            and not beats_structure(single_cmp[c.name])]
+            and not beats_structure(single_cmp[c.name]) and not heats(single_cmp[c.name])]
     if not todo:
         return single_cmp
     (sname,) = [n for n in STRUCTURE if best_null.name == n]
