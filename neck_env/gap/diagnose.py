@@ -645,7 +645,8 @@ def by_recordings(c: Comparison) -> bool:
     The same rule is the margin over a structural discrepancy that is no rival
     (``beats_structure``); independent rig 6028's delay, 13-44 % off all five recordings,
     passes it against the nominal refit but gains 17 % on the median recording over the
-    latent-heat discrepancy, and is not named. The absolute margin
+    latent-heat discrepancy; it is named nested, on top of that discrepancy
+    (``beats_structure``). The absolute margin
     (``MIN_ABS_DEG``) is on the median recording too: against a structural discrepancy that
     takes a little off the far recording, the pooled difference is nothing (6015: -0.003 deg)
     while the median recording loses 0.2 deg."""
