@@ -588,9 +588,11 @@ def beats_structure(c: Comparison) -> bool:
     Or nested (``on_structure``): the effect fitted on top of that discrepancy beats the
     discrepancy alone by ``significant``. The two compete only where they explain the same
     misfit; a rig can hold both a structural misfit and an effect, and then each alone leaves
-    the other's part (third rig 6026, a creep fitted at ratio 2.45 and tau 2.3 s -- 1.71 and
-    2.2 s true: 39 % off the median held-out recording, but a sequence the model's C_M = C_A
-    leaves 6.2 deg off made the pooled gap 2.92 deg against the stress asymmetry's 2.33)."""
+    the other's part (independent rig 6028, a delay: 0.565 deg alone against the latent-heat
+    discrepancy's 0.635, 17 % on the median recording; on top of it 0.635 -> 0.524 deg, 21 %).
+    Where they explain the same recordings the nested fit adds nothing (third rig 6026, a creep
+    fitted at ratio 2.45 and tau 2.3 s -- 1.71 and 2.2 s true -- on top of the stress
+    asymmetry: -2 %), and the effect is not named."""
     vs = c.vs_structure
     if vs is None:
         return True
