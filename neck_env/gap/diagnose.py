@@ -1493,18 +1493,15 @@ def _on_structure(run: _Run, singles: Sequence[Candidate], single_cmp: dict[str,
             and not beats_structure(single_cmp[c.name]) and not heats(single_cmp[c.name])]
     if not todo:
         return single_cmp
-    (sname,) = [n for n in STRUCTURE if best_null.name == n]
-    skeys = {sp.key for sp in STRUCTURE[sname]}
-    tops = []
-    for c in todo:
-        vals = dict(c.setting())
-        vals.update({k: v for k, v in best_null.values.items() if k in skeys})
-        tops.append(structure_candidate(run.model, sname, vals, c.effects))
+    sname = best_null.name  # a key of STRUCTURE: the best discrepancy on the nominal refit
+    at = {sp.key: best_null.values[sp.key] for sp in STRUCTURE[sname]}
+    tops = [structure_candidate(run.model, sname, {**c.setting(), **at}, c.effects) for c in todo]
     run.fitter.run(tops, max_iter=run.max_iter)
     out = dict(single_cmp)
     for c, top in zip(todo, tops):
         settle_draft(run.model, top, run.hold_rec, run.hold_mask)
-        s = compare_effect(run.data, best_null.pred, top, run.hold_mask)
+        # the tilt alone: ``significant`` reads nothing else
+        s = compare(run.data, best_null.pred, top.pred, run.hold_mask)
         out[c.name] = replace(out[c.name], on_structure=s)
         run.say(f"  {top.name:40s} held-out gap {s.gap_before_deg:.3f} -> {s.gap_after_deg:.3f} "
                 f"deg ({100 * s.reduction:+.0f} % vs {sname} alone; median recording "
