@@ -169,6 +169,18 @@ def test_heat_drained_into_the_terminals_is_this_rigs_baseline_not_a_higher_h(tm
     replay, defaults = _replay_export_and_defaults(ds, rep)
     print("replay RMS per recording, export", np.round(replay, 3), "defaults", np.round(defaults, 3))
     assert np.median(replay) < 0.1 and np.median(replay) < 0.5 * np.median(defaults), (replay, defaults)
+    # without the option the plain baseline judges the effects, and the path is checked on the
+    # held-out thermistors: these need it, so h and the time constant come from it
+    plain = _diagnose(ds, tmp_path, "plain")
+    assert plain["verdict"] == [] and "terminal_share" not in plain["calibration"]["params"]
+    check = plain["calibration"]["terminals"]
+    assert check["selected"], check
+    assert check["heldout_T_F"] > check["heldout_T_F_crit"], check
+    h_plain = check["without_terminals"]["convection_W_m2K"]["value"]
+    h_true = base.thermal.convection_W_m2K
+    assert h_plain > 1.3 * h_true, h_plain  # the one-node baseline reads the path as a larger h
+    h = plain["calibration"]["convection_W_m2K"]
+    assert h["value"] == pytest.approx(h_true, rel=0.15) and "terminals" in h["source"], h
 
 
 def test_one_thermistor_that_drops_out_still_pins_this_rigs_cooling(tmp_path):
@@ -198,6 +210,8 @@ def test_one_thermistor_that_drops_out_still_pins_this_rigs_cooling(tmp_path):
     assert any(line.endswith(",") for line in (one / "rec_01.csv").read_text().splitlines())
     rep = _diagnose(one, tmp_path, "one")
     _check_contract(rep)
+    # no terminals on this rig: the check leaves h to the plain baseline
+    assert rep["calibration"]["terminals"]["selected"] is False, rep["calibration"]["terminals"]
     assert rep["verdict"] == [] and rep["temperatures_used"] is True
     read = rep["temperature_readings"]
     assert read["T2"] == read["T3"] == 0.0 and 0.6 < read["T1"] < 0.75, read

@@ -10,7 +10,9 @@
 2. **Baseline** (``_calibrate``): this rig's baseline (``model.nominal_specs``) fitted to the
    fitting recordings -- a Latin-hypercube scan, then lockstep Levenberg-Marquardt from the
    defaults and the best scan points (``fit_baseline``); a reading at rest that drifts through
-   the dataset is taken out as a nuisance.
+   the dataset is taken out as a nuisance. With thermistors, the baseline with the heat the
+   springs drain into their terminals is checked on the held-out temperatures
+   (``_check_terminals``); where they need it, it gives the reported h and time constants.
 3. **Attribution** (``_attribute``): for every catalogued effect and every generic structural
    discrepancy (``model.STRUCTURE``), the baseline + it refitted on the same recordings (effects
    started from a batched scan of their range, a draft's start profiled over the dataset:
@@ -1357,6 +1359,18 @@ class _Decision:
     ambiguous: list[dict]
 
 
+@dataclass
+class _Terminals:
+    """The baseline refitted with heat drained into the terminals (``model.nominal_specs``),
+    checked on the held-out thermistors against the plain nominal refit (``_check_terminals``)."""
+
+    model: Model
+    cand: Candidate  # fitted on the fitting recordings
+    temperatures: Warming | None  # held-out thermistors, against the plain nominal refit
+    tilt: Comparison  # held-out tilt, against the plain nominal refit
+    selected: bool  # the temperatures need them (``temperatures_fit``), the tilt no worse
+
+
 def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = False,
              terminals: bool = False) -> Diagnosis:
     """Run the whole diagnosis on a dataset (see the module docstring): split, calibrate the
@@ -1375,9 +1389,10 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = F
     run.say(f"{data.n_rec} recordings, {note}; ambient {data.ambient:.1f} C ({data.ambient_source})"
             f"{'; temperatures recorded' + _readings_note(data) if data.has_T else ''}")
     base = _calibrate(run)
+    terms = None if terminals else _check_terminals(run, base)
     att = _attribute(run, base.nominal)
     dec = _decide(run, base.nominal, att)
-    return _conclude(run, base, att, dec)
+    return _conclude(run, base, att, dec, terms)
 
 
 def _readings_note(data: Prepared) -> str:
@@ -1416,6 +1431,42 @@ def _calibrate(run: _Run) -> _Baseline:
     run.say(f"nominal refit: held-out gap {gap_stats(data, nominal.pred, run.hold_mask)['gap']:.3f} "
             f"deg ({nominal.iters} iterations)")
     return _Baseline(nominal=nominal, plain=plain, full_plain=full_plain, drift_found=drift_found)
+
+
+def _check_terminals(run: _Run, base: _Baseline) -> _Terminals | None:
+    """2b. With thermistors, the baseline refitted with the terminals' heat path (from the
+    nominal refit; share 0 and 0.5): a spring crimped to metal cools fast while its terminals
+    are cold and slowly once they are warm, and the plain baseline reads the mix as a larger h
+    (the third rig's effect-free h read 2-82 % high). Selected when it fits the held-out
+    temperatures better by ``temperatures_fit`` and the held-out tilt is not significantly
+    worse; it then gives the calibration's h and time constant (``_conclude``), while effects
+    are still judged on the plain baseline: the path is one more thermal direction an effect
+    could hide in (``neck-gap --fit-terminals`` judges them on it; docs/gap.md, "Heat drained
+    into the terminals"). None without thermistors."""
+    data = run.data
+    if not data.has_T:
+        return None
+    model = Model(data, spring_modulus=any(s.key == "EM_scale" for s in run.model.nominal),
+                  terminals=True)
+    if base.drift_found is not None:
+        model.nominal = list(model.nominal) + drift_specs()
+    fitter = Fitter(model, run.fit_mask)
+    starts = [effect_candidate(model, [], {**base.nominal.values, "terminal_share": share})
+              for share in (0.0, 0.5)]
+    fitter.run(starts, max_iter=run.max_iter)
+    cand = min(starts, key=lambda c: c.cost)
+    temps = thermistor_compare(data, base.nominal.pred, cand.pred,
+                               data.T_read & run.hold_mask[:, None])
+    tilt = compare(data, base.nominal.pred, cand.pred, run.hold_mask)
+    selected = temperatures_fit(temps) and tilt.F * tilt.F_crit >= 1.0
+    run.say(f"terminals' heat path (share {cand.values['terminal_share']:.2f}, "
+            f"{cand.values['terminal_tau_s']:.0f} s): held-out temperatures "
+            + (f"{temps.rms_before_C:.2f} -> {temps.rms_after_C:.2f} C (F {temps.F:.2f})"
+               if temps is not None else "too few readings")
+            + f", tilt {tilt.gap_before_deg:.3f} -> {tilt.gap_after_deg:.3f} deg: "
+            + ("the calibration's h comes from it" if selected else "not needed"))
+    run.lap("terminals_s")
+    return _Terminals(model=model, cand=cand, temperatures=temps, tilt=tilt, selected=selected)
 
 
 def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
@@ -1677,7 +1728,8 @@ def _named_on_temperatures(run: _Run, att: _Attribution,
     return sorted(good, key=lambda c: att.single_cmp[c.name].temperatures.rms_after_C)
 
 
-def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> Diagnosis:
+def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
+              terms: _Terminals | None = None) -> Diagnosis:
     """5. Final fits on all recordings (nominal and corrected), uncertainties, localization,
     what remains unexplained."""
     data, model, hold_mask = run.data, run.model, run.hold_mask
@@ -1697,6 +1749,8 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
     calibration = calibration_summary(all_fitter, final_nominal)
     if verdict:
         calibration["corrected"] = calibration_summary(all_fitter, final)
+    if terms is not None:
+        calibration["terminals"] = _terminals_summary(terms, calibration, run)
     run.lap("final_fit_s")
     # localization of the plain nominal refit: a drift nuisance must not hide where the gap is
     res_nom = full_residuals(data, base.full_plain)
@@ -1765,6 +1819,38 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision) -> 
                            "nominal_heldout": base.full_plain}, timing=run.timing,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp,
                      absorption=absorbed, moved_deg=run.moved_deg)
+
+
+THERMAL_KEYS = ("cooling_time_constant_s", "convection_W_m2K",
+                "cooling_time_constant_cold_terminals_s")
+
+
+def _terminals_summary(terms: _Terminals, calibration: dict, run: _Run) -> dict:
+    """The report's ``calibration.terminals``: the check's evidence and, when selected, the
+    terminal baseline refitted on every recording, whose h and time constants then replace
+    the plain baseline's in ``calibration`` (kept under ``without_terminals``)."""
+    t = terms.temperatures
+    out = {"selected": terms.selected,
+           "heldout_T_rms_before_C": t.rms_before_C if t else None,
+           "heldout_T_rms_after_C": t.rms_after_C if t else None,
+           "heldout_T_F": t.F if t else None, "heldout_T_F_crit": t.F_crit if t else None,
+           "heldout_gap_before": terms.tilt.gap_before_deg,
+           "heldout_gap_after": terms.tilt.gap_after_deg,
+           "doc": "the baseline refitted with heat drained into the terminals; selected when "
+                  "it fits the held-out temperatures better (F test, 20 % and 0.1 C) and the "
+                  "tilt no worse: it then gives h and the time constants"}
+    if terms.selected:
+        fitter = Fitter(terms.model, np.ones_like(run.fit_mask))
+        cand = Candidate("nominal", (), list(terms.model.nominal), u=terms.cand.u.copy())
+        fitter.run([cand], max_iter=run.max_iter)
+        cal = calibration_summary(fitter, cand)
+        out["params"] = {k: cal["params"][k] for k in ("terminal_share", "terminal_tau_s",
+                                                         "h_scale", "heat_capacity_scale")}
+        out["without_terminals"] = {k: calibration[k] for k in THERMAL_KEYS if k in calibration}
+        for k in THERMAL_KEYS:
+            if k in cal:
+                calibration[k] = dict(cal[k], source="the baseline with terminals")
+    return out
 
 
 def ranked(singles: Sequence[Candidate], verdict: Sequence[str]) -> list[Candidate]:

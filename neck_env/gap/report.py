@@ -337,6 +337,17 @@ def text_report(rep: dict) -> str:
                    f" wire ({wire}); give {' and '.join(h['missing'])} in meta.json for yours")
         L.append(f"    convection h = {h['value']:.3g} +- {h['std']:.2g} W/m^2K "
                  f"(default {rep['calibration']['h_default_W_m2K']:.3g}): {why}")
+    terms = rep["calibration"].get("terminals")
+    if terms and terms["selected"]:
+        was = terms["without_terminals"]
+        p = terms["params"]
+        L.append(f"    these thermal figures are from the baseline refitted with heat drained into the "
+                 f"terminals (share {p['terminal_share']['value']:.2f}, {p['terminal_tau_s']['value']:.0f} s): "
+                 f"it fits the held-out temperatures better ({terms['heldout_T_rms_before_C']:.2f} -> "
+                 f"{terms['heldout_T_rms_after_C']:.2f} C, F {terms['heldout_T_F']:.2f}); without "
+                 f"it h = {was['convection_W_m2K']['value']:.3g} W/m^2K, time constant "
+                 f"{was['cooling_time_constant_s']['value']:.3g} s. Effects are judged on the plain "
+                 f"baseline (neck-gap --fit-terminals judges them on this one)")
     weak = rep["calibration"]["weak_directions"]
     if weak:
         L.append("    weakly identifiable: " + "; ".join(
