@@ -500,7 +500,13 @@ def warms(c: Comparison) -> bool:
     baseline shift or structural discrepancy can give (they leave an unpowered spring at
     ambient). A tilt a few per cent worse is noise beside it; a significantly worse one says
     another effect is in the tilt, which the pairs then look for."""
-    return temperatures_fit(c.warming) and c.F * c.F_crit >= 1.0
+    return temperatures_fit(c.warming) and tilt_not_worse(c)
+
+
+def tilt_not_worse(c: Comparison) -> bool:
+    """The held-out tilt of "after" is not significantly worse than the reference's: the F
+    test turned round (the reference's ratio to it under F(n_eff, n_eff) at ``ALPHA``)."""
+    return c.F * c.F_crit >= 1.0
 
 
 def temperatures_fit(w: Warming | None) -> bool:
@@ -1458,7 +1464,7 @@ def _check_terminals(run: _Run, base: _Baseline) -> _Terminals | None:
     temps = thermistor_compare(data, base.nominal.pred, cand.pred,
                                data.T_read & run.hold_mask[:, None])
     tilt = compare(data, base.nominal.pred, cand.pred, run.hold_mask)
-    selected = temperatures_fit(temps) and tilt.F * tilt.F_crit >= 1.0
+    selected = temperatures_fit(temps) and tilt_not_worse(tilt)
     run.say(f"terminals' heat path (share {cand.values['terminal_share']:.2f}, "
             f"{cand.values['terminal_tau_s']:.0f} s): held-out temperatures "
             + (f"{temps.rms_before_C:.2f} -> {temps.rms_after_C:.2f} C (F {temps.F:.2f})"
