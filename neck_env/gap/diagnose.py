@@ -1374,7 +1374,11 @@ class _Terminals:
     cand: Candidate  # fitted on the fitting recordings
     temperatures: Warming | None  # held-out thermistors, against the plain nominal refit
     tilt: Comparison  # held-out tilt, against the plain nominal refit
-    selected: bool  # the temperatures need them (``temperatures_fit``), the tilt no worse
+
+    @property
+    def selected(self) -> bool:
+        """The held-out temperatures need the path (``temperatures_fit``), the tilt no worse."""
+        return temperatures_fit(self.temperatures) and tilt_not_worse(self.tilt)
 
 
 def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = False,
@@ -1452,8 +1456,7 @@ def _check_terminals(run: _Run, base: _Baseline) -> _Terminals | None:
     data = run.data
     if not data.has_T:
         return None
-    model = Model(data, spring_modulus=any(s.key == "EM_scale" for s in run.model.nominal),
-                  terminals=True)
+    model = Model(data, spring_modulus=run.model.spring_modulus, terminals=True)
     if base.drift_found is not None:
         model.nominal = list(model.nominal) + drift_specs()
     fitter = Fitter(model, run.fit_mask)
@@ -1463,16 +1466,17 @@ def _check_terminals(run: _Run, base: _Baseline) -> _Terminals | None:
     cand = min(starts, key=lambda c: c.cost)
     temps = thermistor_compare(data, base.nominal.pred, cand.pred,
                                data.T_read & run.hold_mask[:, None])
-    tilt = compare(data, base.nominal.pred, cand.pred, run.hold_mask)
-    selected = temperatures_fit(temps) and tilt_not_worse(tilt)
+    terms = _Terminals(model=model, cand=cand, temperatures=temps,
+                       tilt=compare(data, base.nominal.pred, cand.pred, run.hold_mask))
+    tilt = terms.tilt
     run.say(f"terminals' heat path (share {cand.values['terminal_share']:.2f}, "
             f"{cand.values['terminal_tau_s']:.0f} s): held-out temperatures "
             + (f"{temps.rms_before_C:.2f} -> {temps.rms_after_C:.2f} C (F {temps.F:.2f})"
                if temps is not None else "too few readings")
             + f", tilt {tilt.gap_before_deg:.3f} -> {tilt.gap_after_deg:.3f} deg: "
-            + ("the calibration's h comes from it" if selected else "not needed"))
+            + ("the calibration's h comes from it" if terms.selected else "not needed"))
     run.lap("terminals_s")
-    return _Terminals(model=model, cand=cand, temperatures=temps, tilt=tilt, selected=selected)
+    return terms
 
 
 def _attribute(run: _Run, nominal: Candidate) -> _Attribution:

@@ -557,6 +557,7 @@ class Model:
         if tuple(base.muscles.azimuths_deg) != data.azimuths:
             base = base.replace(source="meta.json", muscles__azimuths_deg=data.azimuths)
         self.base = base
+        self.spring_modulus = spring_modulus  # the baseline fits EM_scale (``nominal_specs``)
         self.nominal = nominal_specs(data.ambient, data.ambient_sigma, data.has_T, spring_modulus,
                                      terminals=terminals, **wire_ratios(data, base))
         # recorded time since the dataset's first sample (recordings back to back, file order):
