@@ -507,6 +507,10 @@ def main(argv=None) -> int:
     ap.add_argument("--thermistors", choices=("drawn", "always", "never"), default="drawn",
                     help="T1..T3 columns: drawn per dataset (the default), in every dataset (as "
                     "a rig logging its thermistors records), or in none")
+    ap.add_argument("--current-sensor", action="store_true",
+                    help="the rigs log a Hall sensor's reading of the current that flowed "
+                         "(i1_meas..i3_meas), which the diagnosis reads as direct evidence of an "
+                         "actuation delay or a supply limit")
     ap.add_argument("--no-wire-meta", action="store_true",
                     help="leave the wire's diameter and specific heat out of meta.json (h is then "
                     "not identifiable; the cooling time constant still is)")
@@ -541,7 +545,8 @@ def main(argv=None) -> int:
     gen = {k: v for k, v in (("protocol", args.protocol),
                              ("n_recordings", args.recordings), ("duration_s", args.duration),
                              ("temperatures", {"always": True, "never": False}.get(args.thermistors)),
-                             ("wire_meta", False if args.no_wire_meta else None))
+                             ("wire_meta", False if args.no_wire_meta else None),
+                             ("current_sensor", True if args.current_sensor else None))
            if v is not None}
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
     # only when set: folders of earlier runs resume as they were

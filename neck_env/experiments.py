@@ -232,6 +232,9 @@ def add_dataset_arguments(ap: argparse.ArgumentParser, effect_names: Sequence[st
                     "beside the folder)")
     ap.add_argument("--no-wire-meta", dest="wire_meta", action="store_false",
                     help="leave the wire's diameter and specific heat out of meta.json")
+    ap.add_argument("--current-sensor", action="store_true",
+                    help="also write i1_meas..i3_meas: a Hall sensor's reading of the current "
+                         "that flowed")
 
 
 def dataset_arguments(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
@@ -247,4 +250,4 @@ def dataset_arguments(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     return effects, dict(seed=args.seed, protocol=args.protocol, n_recordings=args.recordings,
                          duration_s=args.duration, sample_hz=args.sample_hz,
                          temperatures=args.temperatures, truth_path=args.truth,
-                         wire_meta=args.wire_meta)
+                         wire_meta=args.wire_meta, current_sensor=args.current_sensor)

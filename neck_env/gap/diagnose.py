@@ -48,7 +48,7 @@ from scipy.stats import f as f_dist
 from .. import effects as fx
 from ..physics.plant import cold_terminals_cooling_time_constant_s, cooling_time_constant_s
 from ..recording import Dataset
-from . import localize
+from . import currents, localize
 from .fit import Candidate, Fitter, covariance
 from .model import (DRAFT_FROM, EFFECT_SPECS, SCANNED, STRUCTURE, SUPPLY_OFF_V, Model, ParamSpec,
                     Prediction, Prepared, drift_specs, is_drift_key, prepare, residual_parts,
@@ -1078,6 +1078,8 @@ class Diagnosis:
     nulls: list = field(default_factory=list)  # generic structural discrepancies, best first
     null_cmp: dict[str, Comparison] = field(default_factory=dict)
     moved_deg: float = math.inf  # ``actuation_deg``: below ``NO_ACTUATION_DEG`` nothing actuated
+    measured_currents: currents.CurrentCheck | None = None  # where recorded (i1_meas..)
+    by_currents: dict = field(default_factory=dict)  # effect -> "named" / "dropped" by them
 
 
 def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
@@ -1363,6 +1365,7 @@ class _Decision:
     pairs: list[Candidate]
     pair_cmp: dict[str, Comparison]
     ambiguous: list[dict]
+    by_currents: dict[str, str] = field(default_factory=dict)  # effect -> "named" / "dropped"
 
 
 @dataclass
@@ -1398,11 +1401,14 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = F
                t0=t0)
     run.say(f"{data.n_rec} recordings, {note}; ambient {data.ambient:.1f} C ({data.ambient_source})"
             f"{'; temperatures recorded' + _readings_note(data) if data.has_T else ''}")
+    measured = currents.check(ds)
+    for line in currents.describe(measured) if measured is not None else []:
+        run.say(line)
     base = _calibrate(run)
     terms = None if terminals else _check_terminals(run, base)
     att = _attribute(run, base.nominal)
-    dec = _decide(run, base.nominal, att)
-    return _conclude(run, base, att, dec, terms)
+    dec = _with_currents(run, att, _decide(run, base.nominal, att), measured)
+    return _conclude(run, base, att, dec, terms, measured)
 
 
 def _readings_note(data: Prepared) -> str:
@@ -1721,6 +1727,44 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
     return _Decision(verdict_c=verdict_c, pairs=pairs, pair_cmp=pair_cmp, ambiguous=ambiguous)
 
 
+def _with_currents(run: _Run, att: _Attribution, dec: _Decision,
+                   measured: currents.CurrentCheck | None) -> _Decision:
+    """4b. Where the recordings carry measured currents, they settle ``actuation_delay`` and
+    ``supply_limit`` directly (``currents.check``): one they show is named, one they rule out is
+    dropped, whatever the tilt made of it (the tilt sees either only through the springs' heat,
+    where a later transformation or a larger heat capacity looks the same). The verdict model
+    is then refitted on the fitting recordings with the effects it now holds, the added ones
+    started from their own fit (a delay from the measured lag)."""
+    decides = measured.decides() if measured is not None else {}
+    if not decides:
+        return dec
+    ambiguous = [a for a in dec.ambiguous if a["effect"] not in decides]
+    now = list(dec.verdict_c.effects)
+    want = [e for e in now if decides.get(e, True)]
+    want += [e for e, named in decides.items() if named and e not in want]
+    changes = {e: "named" for e in want if e not in now}
+    changes.update({e: "dropped" for e in now if e not in want})
+    if not changes:
+        return replace(dec, ambiguous=ambiguous)
+    vals = {k: v for k, v in dec.verdict_c.setting().items() if split_key(k)[0] not in changes}
+    for e in changes:
+        if changes[e] == "named":
+            own = next((c for c in att.singles if c.effects == (e,)), None)
+            if own is not None:
+                vals.update({k: v for k, v in own.values.items() if split_key(k)[0] == e})
+    if changes.get("actuation_delay") == "named" and measured.lag is not None:
+        spec = next(p for p in EFFECT_SPECS["actuation_delay"] if p.key.endswith("delay_s"))
+        vals[spec.key] = float(np.clip(measured.lag.median_s, spec.lower, spec.upper))
+    cand = effect_candidate(run.model, want, {}, vals)
+    run.fitter.run([cand], max_iter=run.max_iter)
+    if "convection_change" in want:
+        settle_draft(run.model, cand, run.hold_rec, run.hold_mask)
+    for e, what in changes.items():
+        run.say(f"  {e} {what} on the measured currents (actuation delay {measured.delay}, supply "
+                f"limit {measured.limit}); verdict model refitted: {cand.name or 'nominal'}")
+    return replace(dec, verdict_c=cand, ambiguous=ambiguous, by_currents=changes)
+
+
 def _named_on_temperatures(run: _Run, att: _Attribution,
                            singles: Sequence[Candidate]) -> list[Candidate]:
     """On a neck that never moved (``nameable``) the tilt is noise, so the evidence must be in
@@ -1739,7 +1783,8 @@ def _named_on_temperatures(run: _Run, att: _Attribution,
 
 
 def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
-              terms: _Terminals | None = None) -> Diagnosis:
+              terms: _Terminals | None = None,
+              measured: currents.CurrentCheck | None = None) -> Diagnosis:
     """5. Final fits on all recordings (nominal and corrected), uncertainties, localization,
     what remains unexplained."""
     data, model, hold_mask = run.data, run.model, run.hold_mask
@@ -1828,7 +1873,8 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                      full={"nominal": full_nom, "corrected": full_cor,
                            "nominal_heldout": base.full_plain}, timing=run.timing,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp,
-                     absorption=absorbed, moved_deg=run.moved_deg)
+                     absorption=absorbed, moved_deg=run.moved_deg, measured_currents=measured,
+                     by_currents=dec.by_currents)
 
 
 THERMAL_KEYS = ("cooling_time_constant_s", "convection_W_m2K",

@@ -192,6 +192,7 @@ from neck_env.effects import CATALOGUE, EFFECTS
 from neck_env.experiments import (PROTOCOLS, add_dataset_arguments, dataset_arguments,
                                   diagnosis_protocol, truth_path_for)
 from neck_env.recording import write_meta, write_recording
+from neck_env.gap import currents
 
 __all__ = ["RigParams", "CALIBRATED", "CALIBRATION_TABLE", "PAPER_TABLE1", "generate",
            "calibrate", "table1", "simulate_recording", "truth_path_for", "main"]
@@ -946,11 +947,15 @@ def _resolve_effects(effects, rng: np.random.Generator, p: RigParams, n_rec: int
 def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "mixed",
              n_recordings: int = 15, duration_s: float = 30.0, sample_hz: float = 50.0,
              temperatures: bool | None = None, baseline: str = "wide",
-             truth_path: str | Path | None = None, wire_meta: bool = True) -> dict:
+             truth_path: str | Path | None = None, wire_meta: bool = True,
+             current_sensor: bool = False) -> dict:
     """Write a dataset of this independent rig to ``out_dir`` and its truth beside it.
 
     ``wire_meta``: meta.json gives the wire as its builder knows it: the diameter, and the
     datasheet's specific heat (the calibrated value), not this rig's drawn one.
+
+    ``current_sensor``: the recordings also hold ``i1_meas..i3_meas`` (a Hall sensor's reading of
+    the current that flowed, from a generator of its own: the other columns are unchanged).
 
     ``effects``: None, a list of names, a comma-separated string or a mapping name -> parameters
     (given parameters override the drawn ones). Returns the truth dict."""
@@ -990,6 +995,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         mount = (_rot("z", d) @ _rot("y", math.radians(e["tilt_deg"])) @ _rot("z", -d)
                  @ _rot("z", math.radians(e["yaw_deg"])))
     therm_off = rng.normal(0.0, 0.4, 3)
+    sensor_rng = np.random.default_rng([seed, 1])
+    sensor = currents.HallSensor.draw(sensor_rng)
     out_dir.mkdir(parents=True, exist_ok=True)
     for old in out_dir.glob("*.csv"):
         old.unlink()
@@ -1013,6 +1020,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         if temperatures:
             Tm = _thermistors(sim["T_C"], sample_hz, therm_off, rng)
             cols.update({"T1": Tm[:, 0], "T2": Tm[:, 1], "T3": Tm[:, 2]})
+        if current_sensor:
+            cols.update(sensor.columns(sim["I_A"], sensor_rng))
         fname = f"{rec.name}.csv"
         write_recording(out_dir / fname, cols)
         rec_truth.append({"file": fname, "protocol": rec.description, "h_multiplier": hmul,

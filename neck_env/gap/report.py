@@ -121,6 +121,26 @@ def _unidentified_note(key: str, v: dict, calibration: dict) -> str:
     return "  not identified by these data (held by its prior)"
 
 
+def _currents_lines(L: list[str], mc: dict, changed: dict) -> None:
+    """What the measured currents (``currents.check``) showed, and what they changed."""
+    if not mc["columns"]:
+        L.append(f"  measured currents: none usable ({'; '.join(mc['notes'])})")
+        return
+    L.append(f"  measured currents ({', '.join(mc['columns'])}, {mc['recordings']} recordings):")
+    g = mc["lag"]
+    if g is not None:
+        L.append(f"    lag after the command's edges {1000 * g['median_s']:.0f} ms (quartiles "
+                 f"{1000 * g['q25_s']:.0f}-{1000 * g['q75_s']:.0f} ms, {g['edges']} edges; a delay "
+                 f"from {1000 * g['threshold_s']:.0f} ms): actuation delay {g['verdict']}")
+    sh = mc["shortfall"]
+    if sh is not None:
+        L.append(f"    supply limit {sh['verdict']}: {sh['why']}")
+    for e, what in changed.items():
+        L.append(f"    {e} {what} on the measured currents, whatever the tilt said")
+    for n in mc["notes"]:
+        L.append(f"    note: {n}")
+
+
 def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> dict:
     data = dg.data
     nom_cmp = D.gap_stats(data, dg.nominal.pred, D.sample_masks(data, dg.hold_rec)[1])
@@ -208,6 +228,9 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                        "heldout_gap_effect": _r(a["heldout_gap_effect"]),
                        "effect_size_deg": _r(a["effect_size_deg"], 3)} for a in dg.ambiguous],
         "unexplained_reasons": list(dg.reasons),
+        "measured_currents": (dg.measured_currents.to_dict()
+                              if dg.measured_currents is not None else None),
+        "verdict_by_currents": dict(dg.by_currents),
         "absorption": [{"effect": a["effect"], "reference": {k: _r(v, 6) for k, v in a["reference"].items()},
                         "heldout_size_deg": _r(a["size_deg"]), "heldout_left_deg": _r(a["left_deg"]),
                         "absorbed": _r(a["absorbed"], 3), "by": list(a["by"]),
@@ -392,6 +415,8 @@ def text_report(rep: dict) -> str:
     L.append(f"Verdict: {', '.join(v) if v else 'no catalogued effect is significant'}")
     for a in rep.get("ambiguous", []):
         L.append(f"  ambiguous: {a['effect']} vs baseline {', '.join(a['with'])}: {a['note']}")
+    if rep.get("measured_currents"):
+        _currents_lines(L, rep["measured_currents"], rep.get("verdict_by_currents", {}))
     if rep.get("absorption"):
         L.append("What a baseline shift hides of each effect at its catalogue size, on these "
                  "recordings (held out; an effect mostly hidden cannot be told from the baseline "

@@ -55,6 +55,7 @@ from ..physics.plant import (constants_from_params, cooling_time_constant_s, ini
 from ..experiments import (add_dataset_arguments, dataset_arguments, protocol_schedule,
                            truth_path_for)
 from ..recording import write_meta, write_recording
+from . import currents
 from ..sensors import SensorParams, imu_tilt_series
 
 GEN_DT_S = 0.01
@@ -185,12 +186,17 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
              temperatures: bool | None = None, jitter: float = 0.05,
              truth_path: str | Path | None = None, sensors: SensorParams | None = None,
              write_meta_file: bool = True, hard: bool = False, baseline: str = "default",
-             wire_meta: bool = True, switched_off: bool = False) -> dict:
+             wire_meta: bool = True, switched_off: bool = False,
+             current_sensor: bool = False) -> dict:
     """Write a synthetic dataset to ``out_dir`` and its truth beside it; returns the truth.
 
     ``switched_off``: the effects are drawn (so that every later draw -- protocol, biases,
     noise -- is the same) but not simulated: the same rig, protocol and noise without them,
     against which a benchmark measures how much an effect moves the data.
+
+    ``current_sensor``: the recordings also hold ``i1_meas..i3_meas``, a Hall sensor's reading of
+    the current that flowed (``currents.sensor_reading``; drawn from a generator of its own, so
+    every other column is the same as without it).
 
     ``wire_meta``: meta.json gives the wire as its builder knows it: the diameter, and the
     specific heat of the datasheet (the defaults'), not this rig's drawn one.
@@ -226,6 +232,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     mount = fx.imu_mount(eff)
     delay = fx.delay_s(eff)
     drift_rate = fx.gyro_drift(eff)
+    sensor_rng = np.random.default_rng([seed, 1])  # its own: the other columns stay the same
+    sensor = currents.HallSensor.draw(sensor_rng)
     abias = rng.normal(0.0, sensors.accel_bias_g, 3)
     gbias = rng.normal(0.0, sensors.gyro_bias_dps, 3)
 
@@ -253,14 +261,19 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         o = np.empty((1, L.N_OUT))
         qs = np.empty((n, 3))
         Ts = np.empty((n, 3))
+        flowing = np.zeros((n, 3))  # at each sample instant: the step that starts there
         qs[0] = x[0, L.S_Q:L.S_Q + 3]
         Ts[0] = x[0, L.S_T:L.S_T + 3]
         for k in range(steps):
             step_inplace(rc, x, np.ascontiguousarray(applied[k:k + 1]), dt, 1, left, o)
+            if k % sub == 0:
+                flowing[k // sub] = o[0, L.O_CURRENT:L.O_CURRENT + 3]
             if (k + 1) % sub == 0:
                 qs[(k + 1) // sub] = x[0, L.S_Q:L.S_Q + 3]
                 Ts[(k + 1) // sub] = x[0, L.S_T:L.S_T + 3]
         fatigue = x[0, L.S_FATIGUE:L.S_FATIGUE + 3].copy()
+        if n > 1:
+            flowing[-1] = flowing[-2]
         tilt = np.empty((n, 2))
         a_noise = rng.normal(0.0, sensors.accel_noise_g, (n, 3))
         g_noise = rng.normal(0.0, sensors.gyro_noise_dps, (n, 2))
@@ -273,6 +286,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         if temperatures:
             Tm = Ts + rng.normal(0.0, sensors.temperature_noise_C, Ts.shape)
             cols.update({"T1": Tm[:, 0], "T2": Tm[:, 1], "T3": Tm[:, 2]})
+        if current_sensor:
+            cols.update(sensor.columns(flowing, sensor_rng))
         name = f"rec_{r + 1:0{width}d}.csv"
         write_recording(out_dir / name, cols)
         true_theta = np.degrees(np.hypot(qs[:, 0], qs[:, 1]))
@@ -295,6 +310,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         "temperatures": temperatures, "params": params.to_dict(),
         "sensor_bias": {"accel_g": abias.tolist(), "gyro_dps": gbias.tolist()},
         "recordings": recs_truth, "meta": meta, "integrator_dt_s": dt, "hard": hard,
+        "current_sensor": current_sensor,
         "baseline": baseline, "baseline_ratios": baseline_ratios(params),
         "physical": {"convection_W_m2K": params.thermal.convection_W_m2K,
                      "cooling_time_constant_s": cooling_time_constant_s(params)},

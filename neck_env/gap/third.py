@@ -162,6 +162,7 @@ from neck_env.effects import CATALOGUE, EFFECTS
 from neck_env.experiments import (add_dataset_arguments, dataset_arguments, diagnosis_protocol,
                                   truth_path_for)
 from neck_env.recording import write_meta, write_recording
+from neck_env.gap import currents
 
 GENERATOR = "neck_env.gap.third"
 MUSCLE_AZIMUTH_DEG = (180.0, 60.0, 300.0)
@@ -355,6 +356,7 @@ def _simulate(cmd, P, attach, anchors, fatigue_cum, imu_every):
     out_T = np.zeros((n_out, 6))
     out_th = np.zeros(n_out)
     out_ph = np.zeros(n_out)
+    out_I = np.zeros((n_out, 3))
     nq = 2 * N_SEG
     h0 = P[P_H]
     T_amb = P[P_TAMB]
@@ -513,6 +515,8 @@ def _simulate(cmd, P, attach, anchors, fatigue_cum, imu_every):
             I = cmd[it, m]
             if P[P_SUPV] > 0.0 and I > 0.0:
                 I = min(I, P[P_SUPV] / (Ra + Rb_ + P[P_WIRE]))
+            if it % imu_every == 0:
+                out_I[it // imu_every, m] = I
             Ia = I
             Ib = I
             # ---- heat: wire nodes and the slower post node
@@ -548,7 +552,7 @@ def _simulate(cmd, P, attach, anchors, fatigue_cum, imu_every):
             q_p = (POST_G_W_K * (Tw[2 * m] - Tp[m]) + POST_G_W_K * (Tw[2 * m + 1] - Tp[m])
                    - POST_HA_W_K * (hp / H_NOMINAL_W_M2K) * (Tp[m] - T_amb))
             Tp[m] += DT_S * q_p / c_post
-    return out_R, out_p, out_T, out_th, out_ph
+    return out_R, out_p, out_T, out_th, out_ph, out_I
 
 
 @njit(cache=True)
@@ -702,8 +706,9 @@ def _mount(eff: Mapping[str, Mapping[str, float]]) -> np.ndarray:
 
 def simulate_true(rig: Rig, cmd_fine: np.ndarray, eff: Mapping[str, Mapping[str, float]] | None = None,
                   t0_s: float = 0.0, fatigue_cum: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Plant only: (head rotations, IMU points, wire temperatures, true theta, true phi) at IMU_HZ."""
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Plant only: (head rotations, IMU points, wire temperatures, true theta, true phi, the
+    current that flowed per muscle) at IMU_HZ."""
     eff = eff or {}
     fc = np.zeros(6) if fatigue_cum is None else fatigue_cum
     return _simulate(np.ascontiguousarray(cmd_fine, float), _pack(rig, eff, t0_s), ATTACH, ANCHORS,
@@ -897,8 +902,12 @@ def _thermistor(Tw_imu: np.ndarray) -> np.ndarray:
 
 def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_recordings: int = 15,
              duration_s: float = 30.0, sample_hz: float = 50.0, temperatures: bool | None = None,
-             baseline: str = "wide", truth_path=None, *, wire_meta: bool = True) -> dict:
-    """Write a synthetic dataset of this rig to ``out_dir`` and its truth beside it; return the truth."""
+             baseline: str = "wide", truth_path=None, *, wire_meta: bool = True,
+             current_sensor: bool = False) -> dict:
+    """Write a synthetic dataset of this rig to ``out_dir`` and its truth beside it; return the truth.
+
+    ``current_sensor``: the recordings also hold ``i1_meas..i3_meas`` (a Hall sensor's reading of
+    the current that flowed, from a generator of its own: the other columns are unchanged)."""
     given = _parse_effects(effects)
     if baseline not in ("wide", "default"):
         raise ValueError(f"unknown baseline {baseline!r}; known: wide, default")
@@ -925,6 +934,8 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
     drift = math.radians(eff.get("gyro_bias_drift", {}).get("drift_dps_per_s", 0.0)) * drift_axis
     mount = _mount(eff)
     delay = eff.get("actuation_delay", {}).get("delay_s", 0.0)
+    sensor_rng = np.random.default_rng([seed, 1])
+    sensor = currents.HallSensor.draw(sensor_rng)
 
     out_dir.mkdir(parents=True, exist_ok=True)
     for old in out_dir.glob("*.csv"):
@@ -938,7 +949,7 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
         n_f = int(round(t[-1] / DT_S)) + 1
         t_f = np.arange(n_f) * DT_S
         cmd_f = rec.currents(t_f - delay) if delay > 0 else rec.currents(t_f)
-        R, p, Tw, th_true, _ph = simulate_true(rig, cmd_f, eff, t0, fatigue)
+        R, p, Tw, th_true, _ph, flowing = simulate_true(rig, cmd_f, eff, t0, fatigue)
         n_i = th_true.shape[0]
         acc_n = r_noise.normal(0.0, 0.05, (n_i, 3))
         gyr_n = np.radians(r_noise.normal(0.0, 0.05, (n_i, 3)))
@@ -952,6 +963,8 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
             Tth = _thermistor(Tw)[idx] + th_offset + T_n
             for k in range(3):
                 cols[f"T{k + 1}"] = Tth[:, k]
+        if current_sensor:
+            cols.update(sensor.columns(flowing[idx], sensor_rng))
         write_recording(out_dir / f"{rec.name}.csv", cols)
         rec_truth.append({"name": rec.name, "description": rec.description,
                           "max_theta_true_deg": float(th_true.max())})
