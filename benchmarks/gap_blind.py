@@ -344,6 +344,20 @@ def summarize(results: list[dict]) -> str:
         L.append(f"held-out gap reduction with the true effect added: median {100 * statistics.median(red):.0f} % "
                  f"(target >= 60 %), min {100 * min(red):.0f} %; with the verdict model (singles + pairs): "
                  f"median {100 * statistics.median(corr):.0f} %")
+    # the measured currents (--current-sensor), decision by decision against the truth
+    sensed = [r for r in results if (r["report"] or {}).get("measured_currents")]
+    for name in ("actuation_delay", "supply_limit"):
+        if not sensed:
+            break
+        has = [r for r in sensed if name in r["truth"]]
+        rest = [r for r in sensed if name not in r["truth"]]
+        dec = lambda r: r["report"]["measured_currents"].get("decides", {}).get(name)
+        L.append(f"measured currents, {name}: found on {sum(dec(r) is True for r in has)}/"
+                 f"{len(has)} rigs with it (undecided {sum(dec(r) is None for r in has)}); "
+                 f"ruled out on {sum(dec(r) is False for r in rest)}/{len(rest)} without it "
+                 f"(found on {[r['seed'] for r in rest if dec(r) is True]}); verdict changed by "
+                 f"them: named on {[r['seed'] for r in sensed if r['report'].get('verdict_by_currents', {}).get(name) == 'named']}"
+                 f", dropped on {[r['seed'] for r in sensed if r['report'].get('verdict_by_currents', {}).get(name) == 'dropped']}")
     # where the verdict model's residual still sits where several muscles are warm, the console
     # reads it as structure (localize.warm_muscles): how often, with and without an effect
     def coact(rs):

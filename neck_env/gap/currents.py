@@ -22,7 +22,8 @@ has one the diagnosis measures them instead of inferring them, without any model
   setpoint more than ``GAIN_TOL`` short (more than a current sensor's gain is off), is a
   ``found`` limit; ratios flat and within ``GAIN_TOL`` of 1 are ``not found``; anything
   between is ``undecided`` (e.g. one setpoint, a steady ratio of 0.93: a limit or a sensor
-  gain).
+  gain). A current above the command by more than ``GAIN_TOL`` (a duty-switched supply read
+  sample by sample, a sensor scaled wrongly) leaves it ``undecided``.
 
 Samples where a commanded muscle carries no current at all (relay not closing, a firmware
 cut-off or over-temperature cut) are counted and reported, not read as a limit. The sensor's
@@ -289,7 +290,15 @@ def check(ds: Dataset) -> CurrentCheck | None:
         fall = float(np.median(falls)) if falls else 0.0
         within = float(np.median(changes)) if changes else 0.0
         best = {k: max(v for (kk, _), v in med.items() if kk == k) for k in {kk for kk, _ in med}}
-        if fall > SHORTFALL_MIN:
+        over = max(med, key=med.get)
+        if med[over] > 1.0 + GAIN_TOL:
+            v, why = "undecided", (f"the measured current exceeds the command by "
+                                   f"{100 * (med[over] - 1):.0f} % ({COLUMNS[over[0]]} at "
+                                   f"{over[1]:.2f} A), more than a sensor's gain is off: a "
+                                   f"duty-switched current read sample by sample, or a sensor "
+                                   f"scaled wrongly; log the current averaged over the switching "
+                                   f"period, in A")
+        elif fall > SHORTFALL_MIN:
             lo, hi = min(a for a, _ in spans), max(b for _, b in spans)
             v, why = "found", (f"the current falls short more at the higher setpoints (median "
                                f"over the channels {100 * fall:.0f} % less at the highest than "
@@ -338,9 +347,13 @@ def describe(cc: CurrentCheck) -> list[str]:
         out.append("    lag: no edge to time")
     if cc.shortfall is not None:
         s = cc.shortfall
-        ratios = ", ".join(f"{k} {v:.3f}" for k, v in s.ratio_by_setpoint.items())
-        out.append(f"    measured / commanded on the plateaus: {ratios}; supply limit {s.verdict}: "
-                   f"{s.why}")
+        per = {}
+        for key, v in s.ratio_by_setpoint.items():
+            col, amps = key.split(" ", 1)
+            per.setdefault(col, []).append(f"{v:.3f} at {amps}")
+        ratios = "; ".join(f"{col} {', '.join(x)}" for col, x in per.items())
+        out.append(f"    measured / commanded on the plateaus: {ratios}")
+        out.append(f"    supply limit {s.verdict}: {s.why}")
     for n in cc.notes:
         out.append(f"    note: {n}")
     return out

@@ -27,7 +27,8 @@
    fitting recordings by the F test). Then a second effect on top of the first (and on top of
    each responsible single the first does not significantly beat); with none responsible but a
    large systematic gap, pairs of the best singles; and effects ``ambiguous`` with a baseline
-   shift.
+   shift. Where the recordings carry measured currents (``currents.check``), they settle
+   ``actuation_delay`` and ``supply_limit`` whatever the tilt said (``_with_currents``).
 5. **Conclusion** (``_conclude``): the final model (baseline + verdict) refitted on all
    recordings; parameter uncertainties and identifiability from its Jacobian; localization of
    the nominal and of the remaining residual; ``unexplained`` when a large systematic residual
@@ -116,9 +117,21 @@ SEPARATE = {
                          "(a residual tilt stays) separate them",
     "actuation_delay": "a delay and a later onset of transformation both start the bend late: "
                        "the temperature (thermistors) and the start of cooling move with a "
-                       "delay, not with the transformation temperatures",
+                       "delay, not with the transformation temperatures; a measured current "
+                       "(i1_meas..) shows the lag itself",
     "imu_misalignment": "a yawed IMU and muscles at other azimuths read the same: check the "
                         "muscle azimuths in meta.json",
+}
+
+
+# What the tilt saw when the measured currents rule out the effect it named (``_with_currents``).
+DROPPED_BY_CURRENTS = {
+    "actuation_delay": "the current follows the command on time, so the lag is after it: in the "
+                       "tilt's sensing chain (an IMU filter that low-passes the angle, a reading "
+                       "logged late) or in the springs' heating (a slower thermal contact)",
+    "supply_limit": "the current holds the command at every setpoint, so the springs heat less "
+                    "per ampere than the model: their resistance or heat capacity (the baseline "
+                    "refit's R_scale, heat_capacity_scale) or a wire not the paper's",
 }
 
 
@@ -1855,6 +1868,13 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                        + ("the verdict's effects do not move it so" if verdict else
                           "no effect found here moves the rest reading from recording to "
                           "recording"))
+    # the tilt named an effect the measured currents rule out: what it saw is still there
+    for e in (e for e, what in dec.by_currents.items() if what == "dropped"):
+        own = next((c for c in att.singles if c.effects == (e,)), None)
+        fitted = ", ".join(f"{split_key(k)[1]} {v:.3g}" for k, v in (own.values if own else {}).items()
+                           if split_key(k)[0] == e)
+        reasons.append(f"the tilt named {e} ({fitted}) but the measured currents rule it out: "
+                       + DROPPED_BY_CURRENTS[e])
     why = structure_reason(att, verdict, sys_rms, sys_tol)
     if why:
         reasons.append(why)
