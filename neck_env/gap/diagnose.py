@@ -1879,6 +1879,10 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
     if why:
         reasons.append(why)
     absorbed = absorption(model, run.fitter, nominal, hold_mask)
+    settled = measured.decides() if measured is not None else {}
+    for a in absorbed:  # what the tilt would hide, the currents have shown or ruled out
+        if a["effect"] in settled and a["separate"]:
+            a["separate"] = "settled by the measured currents (measured_currents)"
     run.lap("absorption_s")
     run.timing["total_s"] = time.perf_counter() - run.t0
     return Diagnosis(data=data, model=model, hold_rec=run.hold_rec, split_note=run.split_note,
