@@ -333,29 +333,31 @@ def check(ds: Dataset) -> CurrentCheck | None:
     return CurrentCheck(tuple(used), len(per_rec), fs, zero, lag, short, tuple(notes))
 
 
-def describe(cc: CurrentCheck) -> list[str]:
-    """Console lines for the report."""
-    if not cc.columns:
-        return [f"measured currents: none usable ({'; '.join(cc.notes)})"]
-    out = [f"measured currents ({', '.join(cc.columns)}, {cc.recordings} recordings):"]
-    if cc.lag is not None:
-        g = cc.lag
-        out.append(f"    lag after the command's edges: median {1000 * g.median_s:.0f} ms "
-                   f"(quartiles {1000 * g.q25_s:.0f}-{1000 * g.q75_s:.0f} ms, {g.edges} edges; "
-                   f"a delay from {1000 * g.threshold_s:.0f} ms): actuation delay {g.verdict}")
+def describe(mc: dict, indent: str = "") -> list[str]:
+    """Console lines of a check in its report form (``CurrentCheck.to_dict``): the diagnosis'
+    log and the text report both print these."""
+    if not mc["columns"]:
+        return [f"{indent}measured currents: none usable ({'; '.join(mc['notes'])})"]
+    out = [f"{indent}measured currents ({', '.join(mc['columns'])}, {mc['recordings']} recordings):"]
+    g = mc["lag"]
+    if g is not None:
+        out.append(f"{indent}    lag after the command's edges: median {1000 * g['median_s']:.0f} ms "
+                   f"(quartiles {1000 * g['q25_s']:.0f}-{1000 * g['q75_s']:.0f} ms, {g['edges']} "
+                   f"edges; a delay from {1000 * g['threshold_s']:.0f} ms): actuation delay "
+                   f"{g['verdict']}")
     else:
-        out.append("    lag: no edge to time")
-    if cc.shortfall is not None:
-        s = cc.shortfall
-        per = {}
-        for key, v in s.ratio_by_setpoint.items():
+        out.append(f"{indent}    lag: no edge to time")
+    s = mc["shortfall"]
+    if s is not None:
+        per: dict[str, list[str]] = {}
+        for key, v in s["ratio_by_setpoint"].items():
             col, amps = key.split(" ", 1)
             per.setdefault(col, []).append(f"{v:.3f} at {amps}")
         ratios = "; ".join(f"{col} {', '.join(x)}" for col, x in per.items())
-        out.append(f"    measured / commanded on the plateaus: {ratios}")
-        out.append(f"    supply limit {s.verdict}: {s.why}")
-    for n in cc.notes:
-        out.append(f"    note: {n}")
+        out.append(f"{indent}    measured / commanded on the plateaus: {ratios}")
+        out.append(f"{indent}    supply limit {s['verdict']}: {s['why']}")
+    for n in mc["notes"]:
+        out.append(f"{indent}    note: {n}")
     return out
 
 

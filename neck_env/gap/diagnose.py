@@ -1415,7 +1415,7 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = F
     run.say(f"{data.n_rec} recordings, {note}; ambient {data.ambient:.1f} C ({data.ambient_source})"
             f"{'; temperatures recorded' + _readings_note(data) if data.has_T else ''}")
     measured = currents.check(ds)
-    for line in currents.describe(measured) if measured is not None else []:
+    for line in currents.describe(measured.to_dict()) if measured is not None else []:
         run.say(line)
     base = _calibrate(run)
     terms = None if terminals else _check_terminals(run, base)
@@ -1760,14 +1760,10 @@ def _with_currents(run: _Run, att: _Attribution, dec: _Decision,
     if not changes:
         return replace(dec, ambiguous=ambiguous)
     vals = {k: v for k, v in dec.verdict_c.setting().items() if split_key(k)[0] not in changes}
-    for e in changes:
-        if changes[e] == "named":
-            own = next((c for c in att.singles if c.effects == (e,)), None)
-            if own is not None:
-                vals.update({k: v for k, v in own.values.items() if split_key(k)[0] == e})
+    for e in (e for e, what in changes.items() if what == "named"):
+        vals.update(_own_fit(att, e))
     if changes.get("actuation_delay") == "named" and measured.lag is not None:
-        spec = next(p for p in EFFECT_SPECS["actuation_delay"] if p.key.endswith("delay_s"))
-        vals[spec.key] = float(np.clip(measured.lag.median_s, spec.lower, spec.upper))
+        vals["actuation_delay.delay_s"] = measured.lag.median_s  # u_from clips it to the bounds
     cand = effect_candidate(run.model, want, {}, vals)
     run.fitter.run([cand], max_iter=run.max_iter)
     if "convection_change" in want:
@@ -1776,6 +1772,12 @@ def _with_currents(run: _Run, att: _Attribution, dec: _Decision,
         run.say(f"  {e} {what} on the measured currents (actuation delay {measured.delay}, supply "
                 f"limit {measured.limit}); verdict model refitted: {cand.name or 'nominal'}")
     return replace(dec, verdict_c=cand, ambiguous=ambiguous, by_currents=changes)
+
+
+def _own_fit(att: _Attribution, effect: str) -> dict[str, float]:
+    """The effect's parameters as its own single fit (``_attribute``) left them."""
+    own = next((c for c in att.singles if c.effects == (effect,)), None)
+    return {k: v for k, v in (own.values if own else {}).items() if split_key(k)[0] == effect}
 
 
 def _named_on_temperatures(run: _Run, att: _Attribution,
@@ -1870,9 +1872,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                           "recording"))
     # the tilt named an effect the measured currents rule out: what it saw is still there
     for e in (e for e, what in dec.by_currents.items() if what == "dropped"):
-        own = next((c for c in att.singles if c.effects == (e,)), None)
-        fitted = ", ".join(f"{split_key(k)[1]} {v:.3g}" for k, v in (own.values if own else {}).items()
-                           if split_key(k)[0] == e)
+        fitted = ", ".join(f"{split_key(k)[1]} {v:.3g}" for k, v in _own_fit(att, e).items())
         reasons.append(f"the tilt named {e} ({fitted}) but the measured currents rule it out: "
                        + DROPPED_BY_CURRENTS[e])
     why = structure_reason(att, verdict, sys_rms, sys_tol)

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from .. import effects as fx
+from . import currents
 from . import diagnose as D
 from .model import STRUCTURE, clip_to_catalogue
 
@@ -119,26 +120,6 @@ def _unidentified_note(key: str, v: dict, calibration: dict) -> str:
     if key == "h_scale" and calibration.get("cooling_time_constant_s", {}).get("identified"):
         return "  not identified alone: only as m c/(h A) (below)"
     return "  not identified by these data (held by its prior)"
-
-
-def _currents_lines(L: list[str], mc: dict, changed: dict) -> None:
-    """What the measured currents (``currents.check``) showed, and what they changed."""
-    if not mc["columns"]:
-        L.append(f"  measured currents: none usable ({'; '.join(mc['notes'])})")
-        return
-    L.append(f"  measured currents ({', '.join(mc['columns'])}, {mc['recordings']} recordings):")
-    g = mc["lag"]
-    if g is not None:
-        L.append(f"    lag after the command's edges {1000 * g['median_s']:.0f} ms (quartiles "
-                 f"{1000 * g['q25_s']:.0f}-{1000 * g['q75_s']:.0f} ms, {g['edges']} edges; a delay "
-                 f"from {1000 * g['threshold_s']:.0f} ms): actuation delay {g['verdict']}")
-    sh = mc["shortfall"]
-    if sh is not None:
-        L.append(f"    supply limit {sh['verdict']}: {sh['why']}")
-    for e, what in changed.items():
-        L.append(f"    {e} {what} on the measured currents, whatever the tilt said")
-    for n in mc["notes"]:
-        L.append(f"    note: {n}")
 
 
 def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> dict:
@@ -416,7 +397,9 @@ def text_report(rep: dict) -> str:
     for a in rep.get("ambiguous", []):
         L.append(f"  ambiguous: {a['effect']} vs baseline {', '.join(a['with'])}: {a['note']}")
     if rep.get("measured_currents"):
-        _currents_lines(L, rep["measured_currents"], rep.get("verdict_by_currents", {}))
+        L.extend(currents.describe(rep["measured_currents"], indent="  "))
+        for e, what in rep.get("verdict_by_currents", {}).items():
+            L.append(f"      {e} {what} on the measured currents, whatever the tilt said")
     if rep.get("absorption"):
         L.append("What a baseline shift hides of each effect at its catalogue size, on these "
                  "recordings (held out; an effect mostly hidden cannot be told from the baseline "

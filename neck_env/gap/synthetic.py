@@ -195,7 +195,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     against which a benchmark measures how much an effect moves the data.
 
     ``current_sensor``: the recordings also hold ``i1_meas..i3_meas``, a Hall sensor's reading of
-    the current that flowed (``currents.sensor_reading``; drawn from a generator of its own, so
+    the current that flowed (``currents.HallSensor``; drawn from a generator of its own, so
     every other column is the same as without it).
 
     ``wire_meta``: meta.json gives the wire as its builder knows it: the diameter, and the
