@@ -29,6 +29,11 @@ Protocols:
 * ``paper``: the paper's own 5 s pulses (4-5 A of its Fig. 7, 6-8 A of its Table 1).
 * ``rig``: ``mixed`` followed by two ``long_cool`` recordings (60 s): what the rig should record;
   the long tails separate a draft or a temperature-dependent h from a plain recalibration of h.
+* ``drawn``: the same kinds with another lab's timing, drawn per recording: pulses from
+  t = 0.5-4 s held 2.5-9 s at any current in 4-8 A (0.1 A steps), relay sequences of 1-5 s
+  segments at 4.5-7.5 A, 2-4 cycles of 1.5-4 s on and 2-8 s off, and at least 8 s of cooling.
+  Not a protocol to record by: it checks that the diagnosis does not lean on this module's
+  pulse timing (``benchmarks/gap_blind.py --protocol drawn``).
 
 Every recording must start **at rest**: upright (tilt back at its rest reading) with the springs
 at ambient. ``REST`` says how close is close enough; the rig waits for it, the diagnosis checks it.
@@ -47,7 +52,7 @@ import numpy as np
 __all__ = ["Recording", "RestCriterion", "REST", "PROTOCOLS", "diagnosis_protocol",
            "protocol_schedule", "truth_path_for", "add_dataset_arguments", "dataset_arguments"]
 
-PROTOCOLS = ("mixed", "paper", "rig")
+PROTOCOLS = ("mixed", "paper", "rig", "drawn")
 PULSE_START_S = 2.0
 PULSE_ON_S = 5.0
 
@@ -124,8 +129,8 @@ class Recording:
 
 
 def _pulse(name: str, muscle: int, amps: float, duration_s: float, on_s: float = PULSE_ON_S,
-           kind: str = "pulse") -> Recording:
-    seg = ((PULSE_START_S, PULSE_START_S + on_s, (muscle,)),)
+           kind: str = "pulse", start_s: float = PULSE_START_S) -> Recording:
+    seg = ((start_s, start_s + on_s, (muscle,)),)
     return Recording(name, kind, f"pulse m{muscle + 1} {amps:g} A {on_s:g} s", float(amps),
                      float(duration_s), seg)
 
@@ -150,6 +155,8 @@ def diagnosis_protocol(seed: int | np.random.Generator = 0, protocol: str = "mix
             m, a = combos[k]
             out.append(_pulse(nm(), m, a, duration_s))
         return out
+    if protocol == "drawn":
+        return _drawn(rng, n_recordings, duration_s, nm, out)
     # The draws below keep their order: a seed gives the same datasets as earlier versions.
     n_pulse = max(1, round(n_recordings * 0.6))
     n_seq = max(0, round(n_recordings * 0.2))
@@ -192,6 +199,63 @@ def diagnosis_protocol(seed: int | np.random.Generator = 0, protocol: str = "mix
     if protocol == "rig":
         for m in (0, 1):
             out.append(_pulse(nm(), m, 7.0, max(60.0, duration_s), kind="long_cool"))
+    return out
+
+
+DRAWN_MIN_COOL_S = 8.0  # every drawn recording ends with at least this much cooling
+DRAWN_MAX_ON_S = 9.0  # under the firmware's 10 s on-time cap
+
+
+def _drawn(rng: np.random.Generator, n_recordings: int, duration_s: float, nm,
+           out: list[Recording]) -> list[Recording]:
+    """``drawn``: the mixed protocol's kinds and shares with timing and levels drawn wide."""
+    budget = duration_s - DRAWN_MIN_COOL_S  # the last relay opens by then
+    if budget < 0.5 + 2.5:
+        raise ValueError(f"the drawn protocol needs recordings of at least "
+                         f"{0.5 + 2.5 + DRAWN_MIN_COOL_S:g} s (got {duration_s} s)")
+    n_pulse = max(1, round(n_recordings * 0.6))
+    n_seq = max(0, round(n_recordings * 0.2))
+    kinds = ["pulse"] * n_pulse + ["seq"] * n_seq + ["cycle"] * (n_recordings - n_pulse - n_seq)
+    muscles = rng.permutation(np.arange(n_pulse) % 3)
+    ip = 0
+    for kind in rng.permutation(kinds):
+        start = float(np.floor(rng.uniform(0.5, min(4.0, budget - 2.5)) * 100) / 100)
+        if kind == "pulse":
+            on = float(np.floor(rng.uniform(2.5, min(DRAWN_MAX_ON_S, budget - start)) * 100) / 100)
+            amps = float(round(rng.uniform(4.0, 8.0), 1))
+            m = int(muscles[ip])
+            ip += 1
+            out.append(_pulse(nm(), m, amps, duration_s, on_s=on, start_s=start))
+        elif kind == "seq":
+            supply = float(round(rng.uniform(4.5, 7.5), 1))
+            states = [(0,), (1,), (2,), (0, 1), (1, 2), (0, 2), ()]
+            on_time, segs, desc, tk = np.zeros(3), [], [], start
+            while True:
+                d = float(round(rng.uniform(1.0, 5.0), 2))
+                if tk + d > budget:
+                    break
+                st = tuple(k for k in states[int(rng.integers(len(states)))]
+                           if on_time[k] + d <= DRAWN_MAX_ON_S)
+                if st:
+                    segs.append((tk, tk + d, st))
+                on_time[list(st)] += d
+                desc.append("".join(str(k + 1) for k in st) or "-")
+                tk += d
+            if not segs:  # a recording too short for a segment still heats one muscle
+                segs.append((start, start + 2.5, (int(rng.integers(3)),)))
+                desc.append(str(segs[0][2][0] + 1))
+            out.append(Recording(nm(), "sequence", f"relay sequence {supply:g} A [{' '.join(desc)}]",
+                                 supply, float(duration_s), tuple(segs)))
+        else:
+            m = int(rng.integers(3))
+            amps = float(round(rng.uniform(4.5, 7.0), 1))
+            on = float(np.floor(rng.uniform(1.5, min(4.0, budget - start)) * 100) / 100)
+            off = float(round(rng.uniform(2.0, 8.0), 2))
+            n = int(min(rng.integers(2, 5), max(1, (budget - start + off) // (on + off)),
+                        DRAWN_MAX_ON_S // on))
+            segs = tuple((start + (on + off) * c, start + (on + off) * c + on, (m,)) for c in range(n))
+            out.append(Recording(nm(), "cycles", f"cycles m{m + 1} {amps:g} A {on:g} s on / {off:g} "
+                                 f"s off x{n}", amps, float(duration_s), segs))
     return out
 
 

@@ -17,9 +17,11 @@ def test_protocol_is_seeded_and_runs_on_the_rig(protocol):
     for rec in a:
         assert 4.0 <= rec.supply_A <= 8.0
         assert rec.longest_on_s < FIRMWARE_ONTIME_CAP_S
-        # every recording starts at rest and ends with a cooling tail of >= 10 s
-        assert all(t_on >= 2.0 - 1e-9 for t_on, _, _ in rec.segments)
-        assert rec.duration_s - max(t_off for _, t_off, _ in rec.segments) >= 10.0
+        # every recording starts at rest and ends with a cooling tail (drawn: another lab's
+        # timing, from 0.5 s and with at least 8 s of cooling)
+        first_on, tail = (0.5, 8.0) if protocol == "drawn" else (2.0, 10.0)
+        assert all(t_on >= first_on - 1e-9 for t_on, _, _ in rec.segments)
+        assert rec.duration_s - max(t_off for _, t_off, _ in rec.segments) >= tail - 1e-9
 
 
 def test_mixed_protocol_covers_muscles_currents_and_kinds():
@@ -37,6 +39,23 @@ def test_rig_protocol_adds_long_cooling_tails():
     recs = diagnosis_protocol(0, "rig")
     assert [r.kind for r in recs[-2:]] == ["long_cool", "long_cool"]
     assert all(r.duration_s >= 60.0 for r in recs[-2:])
+
+
+def test_drawn_protocol_varies_the_timing_within_the_rig_limits():
+    recs = [r for seed in range(20) for r in diagnosis_protocol(seed, "drawn")]
+    starts = [r.segments[0][0] for r in recs]
+    pulses = [r for r in recs if r.kind == "pulse"]
+    ons = [r.segments[0][1] - r.segments[0][0] for r in pulses]
+    assert min(starts) < 1.0 and max(starts) > 3.5  # not the mixed protocol's 2 s
+    assert min(ons) < 3.5 and max(ons) > 8.0  # not its 5 s
+    assert len({r.supply_A for r in pulses}) > 20  # levels anywhere in 4-8 A, not a fixed set
+    assert {r.kind for r in recs} == {"pulse", "sequence", "cycles"}
+    # the same mixed protocol as before for the same seed (the drawn one has its own branch)
+    assert [r.description for r in diagnosis_protocol(0, "mixed")][0] == "pulse m3 8 A 5 s"
+    short = diagnosis_protocol(1, "drawn", n_recordings=6, duration_s=12.0)
+    assert all(r.duration_s - max(b for _, b, _ in r.segments) >= 8.0 - 1e-9 for r in short)
+    with pytest.raises(ValueError, match="at least 11 s"):
+        diagnosis_protocol(0, "drawn", duration_s=10.0)
 
 
 def test_schedule_matches_relays_and_on_time():
