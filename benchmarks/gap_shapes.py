@@ -1,6 +1,6 @@
 """The diagnosis on dataset shapes the blind suites never use.
 
-    python benchmarks/gap_shapes.py                         # 9 shapes x (effect-free + 3 effects)
+    python benchmarks/gap_shapes.py                         # 10 shapes x (effect-free + 3 effects)
     python benchmarks/gap_shapes.py --shapes hz100,rec4x30 --effects - --out runs/shapes
 
 ``benchmarks/gap_blind.py`` draws every dataset as 15 recordings x 30 s at 50 Hz of the mixed
@@ -37,6 +37,7 @@ SHAPES: dict[str, dict] = {
     "rec15x60_100hz": dict(n_recordings=15, duration_s=60.0, sample_hz=100.0),
     "paper": dict(protocol="paper"),  # only the paper's single-muscle pulses
     "rig": dict(protocol="rig"),  # the rig protocol: long cooling tails, repeated pulses
+    "drawn": dict(protocol="drawn"),  # another lab's timing: pulse starts, lengths and levels
     "nometa": dict(),  # meta.json removed: sample rate from t, ambient from the data
 }
 # one effect of each kind of signature: a sensor, a timing, a heat-flow change

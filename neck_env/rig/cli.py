@@ -34,7 +34,7 @@ from ..task import CONTROL_DT_S, DEFAULT_BUDGET_J, DEFAULT_CUTOFF_C, DEFAULT_SUP
 from ..observation import tilt_angles_deg, tilt_from_accel
 from . import protocol as P
 from .errors import RigError, fault_names
-from ..experiments import PROTOCOLS as PROTOCOL_NAMES
+from ..experiments import RECORDING_PROTOCOLS as PROTOCOL_NAMES
 from ..recording import add_wire_arguments, wire_from_arguments
 
 __all__ = ["build_parser", "main"]
