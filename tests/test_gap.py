@@ -617,10 +617,12 @@ def test_the_springs_temperatures_name_a_convection_the_tilt_leaves_to_friction(
 
 
 # Dataset shapes the blind suites never use (a small faithful version of
-# benchmarks/gap_shapes.py): another IMU rate, four recordings, no meta.json.
+# benchmarks/gap_shapes.py): another IMU rate, four recordings, no meta.json, another lab's
+# pulse timing.
 @pytest.mark.parametrize("shape, effect", [("hz100", "imu_misalignment"),
                                            ("nometa", "actuation_delay"),
-                                           ("rec4x30", "convection_change")])
+                                           ("rec4x30", "convection_change"),
+                                           ("drawn", "actuation_delay")])
 def test_unseen_dataset_shapes(tmp_path, gap_shapes_script, shape, effect):
     gs = gap_shapes_script
     r = gs.run(shape, effect, gs.seed_of(effect), tmp_path)
