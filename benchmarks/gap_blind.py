@@ -306,6 +306,14 @@ def summarize(results: list[dict]) -> str:
     L.append(f"effect-free: false positives {rate(len(fp), len(free))} (target <= 10 %)"
              + (f" [{which}]" if fp else "")
              + f"; flagged unexplained {sum(bool(r['report'].get('unexplained')) for r in free)}/{len(free)}")
+    # a verdict naming an effect the rig does not have misleads a user more than a miss does
+    wrong = [r for r in singles + pairs + gyro
+             if set(r["report"].get("verdict", [])) - set(r["truth"])]
+    L.append(f"datasets with an effect present whose verdict also names one absent: "
+             f"{len(wrong)}/{len(singles) + len(pairs) + len(gyro)}"
+             + (" [" + ", ".join(f"{r['seed']} {'+'.join(r['truth'])}: "
+                                 f"{'+'.join(sorted(set(r['report']['verdict']) - set(r['truth'])))}"
+                                 for r in wrong) + "]" if wrong else ""))
     amb = [r for r in singles if next(iter(r["truth"])) in
            {a["effect"] for a in r["report"].get("ambiguous", [])}]
     if singles:

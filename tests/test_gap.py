@@ -748,6 +748,28 @@ def test_gap_blind_pools_finished_runs_and_refuses_a_rerun_as_a_second_sample(
         gb.main(["--summarize", str(tmp_path / "empty")])
 
 
+def test_gap_blind_counts_verdicts_naming_an_effect_the_rig_lacks(tmp_path, gap_blind_script,
+                                                                   capsys):
+    """A verdict with the true effect *and* one absent is wrong, as is a drift blamed on an
+    effect; a verdict that misses the pair's second effect is not (it names nothing absent)."""
+    gb = gap_blind_script
+    cases = [(1006, {"head_payload": {}}, ["supply_limit"]),
+             (1007, {"supply_limit": {}}, ["supply_limit", "thermal_coupling"]),
+             (1008, {"imu_misalignment": {}}, ["imu_misalignment"]),
+             (1033, {"actuation_delay": {}, "backbone_friction": {}}, ["actuation_delay"]),
+             (1039, {"gyro_bias_drift": {"drift_dps_per_s": 0.01}}, ["backbone_friction"]),
+             (1000, {}, [])]
+    for seed, truth, verdict in cases:
+        (tmp_path / f"result_{seed}.json").write_text(json.dumps(
+            {"seed": seed, "truth": truth, "rc": 0, "seconds": 1.0,
+             "report": {"verdict": verdict, "corrected": {"heldout_reduction": 0.0}}}))
+    (tmp_path / "suite.json").write_text(json.dumps({"generator": "independent"}))
+    assert gb.main(["--summarize", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert ("verdict also names one absent: 3/5 [1006 head_payload: supply_limit, "
+            "1007 supply_limit: thermal_coupling, 1039 gyro_bias_drift: backbone_friction]") in out
+
+
 def test_gap_blind_compares_two_runs_dataset_by_dataset(tmp_path, gap_blind_script, capsys):
     """Paired: the McNemar test counts only the datasets one run gets right and the other not
     (here 5 to 0: p = 2 x 0.5^5 = 0.0625), every changed outcome is listed, and runs of other
