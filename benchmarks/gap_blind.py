@@ -9,6 +9,7 @@
     python benchmarks/gap_blind.py --generator independent --baseline wide --first-seed 5000  # fresh rigs
     python benchmarks/gap_blind.py --generator third --baseline wide   # a third rig, written apart
     python benchmarks/gap_blind.py --protocol rig  # another recording protocol (neck_env.experiments)
+    python benchmarks/gap_blind.py --generator independent --baseline wide --protocol drawn  # another lab's timing
     python benchmarks/gap_blind.py --generator independent --baseline wide --first-seed 7000 \
         --effect-free 30   # the false-positive rate alone, on 30 fresh effect-free rigs
     python benchmarks/gap_blind.py --summarize runs/a runs/b   # pool finished runs, print only

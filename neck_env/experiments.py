@@ -50,7 +50,8 @@ from typing import Any, Sequence
 import numpy as np
 
 __all__ = ["Recording", "RestCriterion", "REST", "PROTOCOLS", "RECORDING_PROTOCOLS",
-           "diagnosis_protocol", "protocol_schedule", "truth_path_for", "add_dataset_arguments", "dataset_arguments"]
+           "diagnosis_protocol", "protocol_schedule", "truth_path_for", "add_dataset_arguments",
+           "dataset_arguments"]
 
 RECORDING_PROTOCOLS = ("mixed", "paper", "rig")  # what a rig records (the rig CLI offers these)
 PROTOCOLS = (*RECORDING_PROTOCOLS, "drawn")  # and the generators' check of the timing
