@@ -308,13 +308,11 @@ def summarize(results: list[dict]) -> str:
              + (f" [{which}]" if fp else "")
              + f"; flagged unexplained {sum(bool(r['report'].get('unexplained')) for r in free)}/{len(free)}")
     # a verdict naming an effect the rig does not have misleads a user more than a miss does
-    wrong = [r for r in singles + pairs + gyro
-             if set(r["report"].get("verdict", [])) - set(r["truth"])]
+    absent = [(r, sorted(set(r["report"].get("verdict", [])) - set(r["truth"])))
+              for r in singles + pairs + gyro]
+    wrong = [f"{r['seed']} {'+'.join(r['truth'])}: {'+'.join(extra)}" for r, extra in absent if extra]
     L.append(f"datasets with an effect present whose verdict also names one absent: "
-             f"{len(wrong)}/{len(singles) + len(pairs) + len(gyro)}"
-             + (" [" + ", ".join(f"{r['seed']} {'+'.join(r['truth'])}: "
-                                 f"{'+'.join(sorted(set(r['report']['verdict']) - set(r['truth'])))}"
-                                 for r in wrong) + "]" if wrong else ""))
+             f"{len(wrong)}/{len(absent)}" + (f" [{', '.join(wrong)}]" if wrong else ""))
     amb = [r for r in singles if next(iter(r["truth"])) in
            {a["effect"] for a in r["report"].get("ambiguous", [])}]
     if singles:

@@ -130,6 +130,18 @@ class Recording:
         return best
 
 
+# the relay states a sequence switches among: single muscles, neighbouring pairs, all off
+SEQUENCE_STATES = ((0,), (1,), (2,), (0, 1), (1, 2), (0, 2), ())
+
+
+def _kinds(n_recordings: int) -> list[str]:
+    """The kinds of a mixed (or drawn) protocol's recordings, unshuffled: 60 % pulses (at least
+    one), 20 % sequences, the rest cycles."""
+    n_pulse = max(1, round(n_recordings * 0.6))
+    n_seq = max(0, round(n_recordings * 0.2))
+    return ["pulse"] * n_pulse + ["seq"] * n_seq + ["cycle"] * max(0, n_recordings - n_pulse - n_seq)
+
+
 def _pulse(name: str, muscle: int, amps: float, duration_s: float, on_s: float = PULSE_ON_S,
            kind: str = "pulse", start_s: float = PULSE_START_S) -> Recording:
     seg = ((start_s, start_s + on_s, (muscle,)),)
@@ -160,10 +172,8 @@ def diagnosis_protocol(seed: int | np.random.Generator = 0, protocol: str = "mix
     if protocol == "drawn":
         return _drawn(rng, n_recordings, duration_s, nm, out)
     # The draws below keep their order: a seed gives the same datasets as earlier versions.
-    n_pulse = max(1, round(n_recordings * 0.6))
-    n_seq = max(0, round(n_recordings * 0.2))
-    n_cyc = max(0, n_recordings - n_pulse - n_seq)
-    kinds = ["pulse"] * n_pulse + ["seq"] * n_seq + ["cycle"] * n_cyc
+    kinds = _kinds(n_recordings)
+    n_pulse = kinds.count("pulse")
     kinds = list(rng.permutation(kinds))
     levels = np.linspace(4.0, 8.0, n_pulse) if n_pulse > 1 else np.array([6.0])
     levels = rng.permutation(levels)
@@ -178,11 +188,10 @@ def diagnosis_protocol(seed: int | np.random.Generator = 0, protocol: str = "mix
             supply = float(rng.choice([5.5, 6.0, 6.5, 7.0]))
             on_time = np.zeros(3)
             tk = 2.0
-            states = [(0,), (1,), (2,), (0, 1), (1, 2), (0, 2), ()]
             segs, desc = [], []
             while tk < 16.0:
                 d = float(rng.uniform(2.0, 3.5))
-                st = states[int(rng.integers(len(states)))]
+                st = SEQUENCE_STATES[int(rng.integers(len(SEQUENCE_STATES)))]
                 st = tuple(k for k in st if on_time[k] + d <= 7.0)
                 if st:
                     segs.append((tk, tk + d, st))
@@ -206,37 +215,42 @@ def diagnosis_protocol(seed: int | np.random.Generator = 0, protocol: str = "mix
 
 DRAWN_MIN_COOL_S = 8.0  # every drawn recording ends with at least this much cooling
 DRAWN_MAX_ON_S = 9.0  # under the firmware's 10 s on-time cap
+DRAWN_START_S = (0.5, 4.0)  # the first relay closes in this window
+DRAWN_MIN_PULSE_S = 2.5
+
+
+def _down_to_cs(x: float) -> float:
+    """x rounded down to 10 ms: a drawn time never passes the limit it was drawn under."""
+    return float(np.floor(x * 100) / 100)
 
 
 def _drawn(rng: np.random.Generator, n_recordings: int, duration_s: float, nm,
            out: list[Recording]) -> list[Recording]:
     """``drawn``: the mixed protocol's kinds and shares with timing and levels drawn wide."""
     budget = duration_s - DRAWN_MIN_COOL_S  # the last relay opens by then
-    if budget < 0.5 + 2.5:
+    first, last = DRAWN_START_S
+    if budget < first + DRAWN_MIN_PULSE_S:
         raise ValueError(f"the drawn protocol needs recordings of at least "
-                         f"{0.5 + 2.5 + DRAWN_MIN_COOL_S:g} s (got {duration_s} s)")
-    n_pulse = max(1, round(n_recordings * 0.6))
-    n_seq = max(0, round(n_recordings * 0.2))
-    kinds = ["pulse"] * n_pulse + ["seq"] * n_seq + ["cycle"] * (n_recordings - n_pulse - n_seq)
-    muscles = rng.permutation(np.arange(n_pulse) % 3)
+                         f"{first + DRAWN_MIN_PULSE_S + DRAWN_MIN_COOL_S:g} s (got {duration_s} s)")
+    kinds = _kinds(n_recordings)
+    muscles = rng.permutation(np.arange(kinds.count("pulse")) % 3)
     ip = 0
     for kind in rng.permutation(kinds):
-        start = float(np.floor(rng.uniform(0.5, min(4.0, budget - 2.5)) * 100) / 100)
+        start = _down_to_cs(rng.uniform(first, min(last, budget - DRAWN_MIN_PULSE_S)))
         if kind == "pulse":
-            on = float(np.floor(rng.uniform(2.5, min(DRAWN_MAX_ON_S, budget - start)) * 100) / 100)
+            on = _down_to_cs(rng.uniform(DRAWN_MIN_PULSE_S, min(DRAWN_MAX_ON_S, budget - start)))
             amps = float(round(rng.uniform(4.0, 8.0), 1))
             m = int(muscles[ip])
             ip += 1
             out.append(_pulse(nm(), m, amps, duration_s, on_s=on, start_s=start))
         elif kind == "seq":
             supply = float(round(rng.uniform(4.5, 7.5), 1))
-            states = [(0,), (1,), (2,), (0, 1), (1, 2), (0, 2), ()]
             on_time, segs, desc, tk = np.zeros(3), [], [], start
             while True:
                 d = float(round(rng.uniform(1.0, 5.0), 2))
                 if tk + d > budget:
                     break
-                st = tuple(k for k in states[int(rng.integers(len(states)))]
+                st = tuple(k for k in SEQUENCE_STATES[int(rng.integers(len(SEQUENCE_STATES)))]
                            if on_time[k] + d <= DRAWN_MAX_ON_S)
                 if st:
                     segs.append((tk, tk + d, st))
@@ -244,14 +258,14 @@ def _drawn(rng: np.random.Generator, n_recordings: int, duration_s: float, nm,
                 desc.append("".join(str(k + 1) for k in st) or "-")
                 tk += d
             if not segs:  # a recording too short for a segment still heats one muscle
-                segs.append((start, start + 2.5, (int(rng.integers(3)),)))
+                segs.append((start, start + DRAWN_MIN_PULSE_S, (int(rng.integers(3)),)))
                 desc.append(str(segs[0][2][0] + 1))
             out.append(Recording(nm(), "sequence", f"relay sequence {supply:g} A [{' '.join(desc)}]",
                                  supply, float(duration_s), tuple(segs)))
         else:
             m = int(rng.integers(3))
             amps = float(round(rng.uniform(4.5, 7.0), 1))
-            on = float(np.floor(rng.uniform(1.5, min(4.0, budget - start)) * 100) / 100)
+            on = _down_to_cs(rng.uniform(1.5, min(4.0, budget - start)))
             off = float(round(rng.uniform(2.0, 8.0), 2))
             n = int(min(rng.integers(2, 5), max(1, (budget - start + off) // (on + off)),
                         DRAWN_MAX_ON_S // on))
