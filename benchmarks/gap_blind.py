@@ -328,18 +328,19 @@ def summarize(results: list[dict]) -> str:
     for r in free:
         pt, cal = r.get("physical_truth") or {}, r["report"].get("calibration", {})
         h = cal.get("convection_W_m2K")
-        if h and "convection_W_m2K" in pt:
-            phys["h"].append((h["value"] / pt["convection_W_m2K"] - 1, h.get("identified")))
-        tau = cal.get("cooling_time_constant_s")
-        if tau and "cooling_time_constant_s" in pt:
-            phys["tau"].append((tau["value"] / pt["cooling_time_constant_s"] - 1,
-                                tau.get("identified")))
+        for key, name in (("h", "convection_W_m2K"), ("tau", "cooling_time_constant_s")):
+            fit = cal.get(name)
+            if fit and name in pt:
+                # is the truth within the reported value +- 2 std? (the std's honesty)
+                held = abs(fit["value"] - pt[name]) <= 2 * fit.get("std", 0.0)
+                phys[key].append((fit["value"] / pt[name] - 1, fit.get("identified"), held))
     for key, what in (("h", "h (W/m^2K)"), ("tau", "cooling time constant m c/(h A)")):
         if phys[key]:
             L.append(f"effect-free, {what} fitted / true - 1 = "
                      + ", ".join(f"{100 * e:+.0f} %{'' if ok else ' (not identified)'}"
-                                 for e, ok in phys[key])
-                     + f"; within +-25 %: {sum(abs(e) <= 0.25 for e, _ in phys[key])}/{len(phys[key])}")
+                                 for e, ok, _ in phys[key])
+                     + f"; within +-25 %: {sum(abs(e) <= 0.25 for e, _, _ in phys[key])}/{len(phys[key])}"
+                     + f"; truth within the reported +-2 std: {sum(h for _, _, h in phys[key])}/{len(phys[key])}")
     red = []
     for r in singles:
         name = next(iter(r["truth"]))

@@ -828,3 +828,25 @@ def test_only_heat_from_a_neighbour_warms_a_spring_not_yet_powered(tmp_path):
     # a rig without coupling whose thermistors read 0.4 C off: the coupled model is worse
     data.meas_T = nominal.T + noise + np.array([0.4, -0.4, 0.4])
     assert D.warming_compare(data, nominal, coupled, everywhere).reduction < 0.0
+
+
+def test_gap_blind_checks_the_reported_h_and_time_constant_against_the_truth(
+        tmp_path, gap_blind_script, capsys):
+    """Effect-free rigs: the fitted h and cooling time constant against the generator's
+    physical truth, within +-25 % and within the reported +-2 std (is the std honest?)."""
+    cases = [(1000, (110.0, 8.0), (9.0, 0.2)),  # h +10 %, 1.25 std: held; tau -10 %, 5 std: not
+             (1001, (70.0, 5.0), (10.5, 0.5))]  # h -30 %, 6 std: neither; tau +5 %, 1 std
+    for seed, h, tau in cases:
+        cal = {"convection_W_m2K": {"value": h[0], "std": h[1], "identified": True},
+               "cooling_time_constant_s": {"value": tau[0], "std": tau[1], "identified": True}}
+        (tmp_path / f"result_{seed}.json").write_text(json.dumps(
+            {"seed": seed, "truth": {}, "rc": 0, "seconds": 1.0,
+             "physical_truth": {"convection_W_m2K": 100.0, "cooling_time_constant_s": 10.0},
+             "report": {"verdict": [], "calibration": cal}}))
+    (tmp_path / "suite.json").write_text(json.dumps({"generator": "independent"}))
+    assert gap_blind_script.main(["--summarize", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert ("h (W/m^2K) fitted / true - 1 = +10 %, -30 %; within +-25 %: 1/2; "
+            "truth within the reported +-2 std: 1/2") in out
+    assert ("m c/(h A) fitted / true - 1 = -10 %, +5 %; within +-25 %: 2/2; "
+            "truth within the reported +-2 std: 1/2") in out

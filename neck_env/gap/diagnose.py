@@ -51,7 +51,8 @@ from ..physics.plant import cold_terminals_cooling_time_constant_s, cooling_time
 from ..recording import Dataset
 from . import currents, localize
 from .fit import Candidate, Fitter, covariance
-from .model import (DRAFT_FROM, EFFECT_SPECS, SCANNED, STRUCTURE, SUPPLY_OFF_V, Model, ParamSpec,
+from .model import (DRAFT_FROM, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, SCANNED, STRUCTURE,
+                    SUPPLY_OFF_V, Model, ParamSpec,
                     Prediction, Prepared, drift_specs, is_drift_key, prepare, residual_parts,
                     split_key, switched_off, tilt_vec)
 
@@ -1184,7 +1185,13 @@ def _convection(model: Model, params: dict, tau: dict) -> dict:
     Current-driven recordings pin tau = m c/(h A) (cooling tails) and the heating rate
     I^2 R/(m c), never m c itself, so any split of h and heat capacity with the same tau fits
     them alike: h is identified only for a wire whose diameter and specific heat meta.json
-    gives. Without them the value is the model's own h, on its assumed wire, and says so."""
+    gives. Without them the value is the model's own h, on its assumed wire, and says so.
+
+    Its uncertainty is tau's and the given specific heat's together: a datasheet value, which
+    the baseline itself holds only within ``HEAT_CAPACITY_PRIOR_SIGMA``. With tau's alone the
+    report claimed a few per cent on rigs whose h was 30 % off: their wires' heat capacity was
+    not the datasheet's (effect-free independent rigs 6002 and 6004: -32 and +32 % at a
+    reported 16 and 3 %)."""
     data, base = model.data, model.base
     rho = base.material.density_kg_m3  # NiTi's, well known (datasheet 6.45 g/cm3)
     given = {"spring_wire_diameter_m": data.wire_diameter_m,
@@ -1200,7 +1207,8 @@ def _convection(model: Model, params: dict, tau: dict) -> dict:
         d = data.wire_diameter_m if data.wire_diameter_m is not None else base.spring.wire_diameter_m
         c = (data.specific_heat_J_kgK if data.specific_heat_J_kgK is not None
              else base.material.specific_heat_J_kgK)
-        h, rel = rho * c * d / 4 / tau["value"], tau["std"] / tau["value"]
+        h = rho * c * d / 4 / tau["value"]
+        rel = math.hypot(tau["std"] / tau["value"], HEAT_CAPACITY_PRIOR_SIGMA)
     return {"value": h, "std": h * rel, "identified": bool(tau["identified"] and not missing),
             "tau_identified": bool(tau["identified"]),
             "wire": "meta.json" if not missing else

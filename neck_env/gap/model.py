@@ -94,6 +94,11 @@ class ParamSpec:
         return (v - self.start) / self.prior_sigma
 
 
+# How far a rig's spring heat capacity may sit from the wire's datasheet value (log sd): a
+# datasheet specific heat is a nominal figure for the alloy, not a measurement of this wire
+HEAT_CAPACITY_PRIOR_SIGMA = 0.12
+
+
 def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
                   spring_modulus: bool = False, wire_diameter_ratio: float = 1.0,
                   specific_heat_ratio: float = 1.0, terminals: bool = False) -> list[ParamSpec]:
@@ -142,7 +147,8 @@ def nominal_specs(ambient: float, ambient_sigma: float, has_T: bool = False,
         ParamSpec("R_scale", 0.7 * r_c, 1.4 * r_c, r_c, "plant", log=True, prior_sigma=0.12,
                   doc="spring resistance multiplier (resistivity, both phases)", default=1.0),
         ParamSpec("heat_capacity_scale", 0.7 * c_c, 1.4 * c_c, c_c, "plant", log=True,
-                  prior_sigma=0.12, doc="spring heat capacity multiplier (specific heat)",
+                  prior_sigma=HEAT_CAPACITY_PRIOR_SIGMA,
+                  doc="spring heat capacity multiplier (specific heat)",
                   default=1.0),
         # heat drained into the muscle's terminals (crimps, posts), on request (``neck-gap
         # --fit-terminals``): a second, slower thermal mass, which makes a cooling tail fast at

@@ -14,7 +14,7 @@ import numpy as np
 from .. import effects as fx
 from . import currents
 from . import diagnose as D
-from .model import STRUCTURE, clip_to_catalogue
+from .model import HEAT_CAPACITY_PRIOR_SIGMA, STRUCTURE, clip_to_catalogue
 
 REPORT_VERSION = 1
 
@@ -332,7 +332,9 @@ def text_report(rep: dict) -> str:
         wire = (f"d {1e3 * h['wire_diameter_m']:.3g} mm, c {h['specific_heat_J_kgK']:.0f} J/kgK, "
                 f"{h['heat_capacity_per_area_J_m2K']:.0f} J/m^2K per unit surface")
         if h["identified"]:
-            why = f"identified: the cooling tails' time constant on your wire ({wire}, meta.json)"
+            why = (f"identified: the cooling tails' time constant on your wire ({wire}, "
+                   f"meta.json); the +- carries a datasheet specific heat's "
+                   f"{100 * HEAT_CAPACITY_PRIOR_SIGMA:.0f} % (measure the wire's for a tighter h)")
         elif not h["tau_identified"]:
             why = not_identified
         else:
