@@ -319,7 +319,9 @@ def text_report(rep: dict) -> str:
     not_identified = "NOT identified: record longer cooling tails (the rig protocol)"
     tau = rep["calibration"].get("cooling_time_constant_s")
     if tau:
+        # the +- is the fit's noise: a rig's thermal structure can bias tau beyond it (gap.md)
         L.append(f"    cooling time constant m c/(h A) = {tau['value']:.3g} +- {tau['std']:.2g} s "
+                 f"(noise only) "
                  f"(default {tau['default']:.3g} s): "
                  + ("identified by the cooling tails (the thermal figure to compare with another "
                     "model or a bench measurement)" if tau["identified"] else not_identified))
