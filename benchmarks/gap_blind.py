@@ -327,7 +327,6 @@ def summarize(results: list[dict]) -> str:
     phys = {"h": [], "tau": []}
     for r in free:
         pt, cal = r.get("physical_truth") or {}, r["report"].get("calibration", {})
-        h = cal.get("convection_W_m2K")
         for key, name in (("h", "convection_W_m2K"), ("tau", "cooling_time_constant_s")):
             fit = cal.get(name)
             if fit and name in pt:
@@ -340,7 +339,7 @@ def summarize(results: list[dict]) -> str:
                      + ", ".join(f"{100 * e:+.0f} %{'' if ok else ' (not identified)'}"
                                  for e, ok, _ in phys[key])
                      + f"; within +-25 %: {sum(abs(e) <= 0.25 for e, _, _ in phys[key])}/{len(phys[key])}"
-                     + f"; truth within the reported +-2 std: {sum(h for _, _, h in phys[key])}/{len(phys[key])}")
+                     + f"; truth within the reported +-2 std: {sum(held for _, _, held in phys[key])}/{len(phys[key])}")
     red = []
     for r in singles:
         name = next(iter(r["truth"]))
