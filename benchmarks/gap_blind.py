@@ -324,22 +324,21 @@ def summarize(results: list[dict]) -> str:
              f"over {len(free)} datasets " + str([[a["effect"] for a in r["report"].get("ambiguous", [])]
                                                    for r in free]))
     # in physical units, so that any generator's rig compares, whatever its model's structure
-    phys = {"h": [], "tau": []}
-    for r in free:
-        pt, cal = r.get("physical_truth") or {}, r["report"].get("calibration", {})
-        for key, name in (("h", "convection_W_m2K"), ("tau", "cooling_time_constant_s")):
-            fit = cal.get(name)
+    for name, what in (("convection_W_m2K", "h (W/m^2K)"),
+                       ("cooling_time_constant_s", "cooling time constant m c/(h A)")):
+        rows = []  # (fitted / true - 1, identified, truth within the reported +- 2 std)
+        for r in free:
+            pt = r.get("physical_truth") or {}
+            fit = r["report"].get("calibration", {}).get(name)
             if fit and name in pt:
-                # is the truth within the reported value +- 2 std? (the std's honesty)
-                held = abs(fit["value"] - pt[name]) <= 2 * fit.get("std", 0.0)
-                phys[key].append((fit["value"] / pt[name] - 1, fit.get("identified"), held))
-    for key, what in (("h", "h (W/m^2K)"), ("tau", "cooling time constant m c/(h A)")):
-        if phys[key]:
+                rows.append((fit["value"] / pt[name] - 1, fit.get("identified"),
+                             abs(fit["value"] - pt[name]) <= 2 * fit.get("std", 0.0)))
+        if rows:
             L.append(f"effect-free, {what} fitted / true - 1 = "
                      + ", ".join(f"{100 * e:+.0f} %{'' if ok else ' (not identified)'}"
-                                 for e, ok, _ in phys[key])
-                     + f"; within +-25 %: {sum(abs(e) <= 0.25 for e, _, _ in phys[key])}/{len(phys[key])}"
-                     + f"; truth within the reported +-2 std: {sum(held for _, _, held in phys[key])}/{len(phys[key])}")
+                                 for e, ok, _ in rows)
+                     + f"; within +-25 %: {sum(abs(e) <= 0.25 for e, _, _ in rows)}/{len(rows)}"
+                     + f"; truth within the reported +-2 std: {sum(held for _, _, held in rows)}/{len(rows)}")
     red = []
     for r in singles:
         name = next(iter(r["truth"]))

@@ -321,8 +321,7 @@ def text_report(rep: dict) -> str:
     if tau:
         # the +- is the fit's noise: a rig's thermal structure can bias tau beyond it (gap.md)
         L.append(f"    cooling time constant m c/(h A) = {tau['value']:.3g} +- {tau['std']:.2g} s "
-                 f"(noise only) "
-                 f"(default {tau['default']:.3g} s): "
+                 f"(noise only; default {tau['default']:.3g} s): "
                  + ("identified by the cooling tails (the thermal figure to compare with another "
                     "model or a bench measurement)" if tau["identified"] else not_identified))
         cold = rep["calibration"].get("cooling_time_constant_cold_terminals_s")
