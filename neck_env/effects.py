@@ -54,6 +54,9 @@ class Effect:
     # It changes the springs' temperatures for given commands: thermistors see it even on a
     # neck that never moves (the diagnosis names only these when nothing actuated).
     thermal: bool = False
+    # It grows with use and is carried from recording to recording: a recording early in the
+    # session holds little or none of it (the diagnosis judges it where it has built up).
+    builds_up: bool = False
 
     def sample(self, rng: np.random.Generator) -> dict[str, float]:
         """Parameters drawn uniformly within their ranges (``held`` ones at their default)."""
@@ -82,9 +85,9 @@ class Effect:
 
 
 def _effect(name, kind, signature, params, defaults, doc="", in_catalogue=True,
-            held=(), thermal=False) -> Effect:
+            held=(), thermal=False, builds_up=False) -> Effect:
     return Effect(name, kind, {k: EffectParam(*v) for k, v in params.items()}, signature,
-                  in_catalogue, doc, defaults, tuple(held), thermal)
+                  in_catalogue, doc, defaults, tuple(held), thermal, builds_up)
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in [
@@ -161,7 +164,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
         {"rate": (0.005, 0.05, "-", "loss of recoverable strain per unit transformed fraction"),
          "max_loss": (0.1, 0.5, "-", "cap on the loss, fraction of gamma_L")},
         {"rate": 0.02, "max_loss": 0.3},
-        "Recoverable strain decays with cycles."),
+        "Recoverable strain decays with cycles.", builds_up=True),
     _effect(
         "backbone_friction", "plant",
         "a dead band: no motion until the muscle moment exceeds a threshold; the head sticks "
@@ -176,7 +179,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
         {"drift_dps_per_s": (0.002, 0.02, "deg/s per s", "growth rate of the gyro bias")},
         {"drift_dps_per_s": 0.01},
         "Held out of the catalogue: the diagnosis must call it unexplained.",
-        in_catalogue=False),
+        in_catalogue=False, builds_up=True),
 ]}
 
 CATALOGUE = tuple(n for n, e in EFFECTS.items() if e.in_catalogue)

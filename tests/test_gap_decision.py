@@ -753,3 +753,75 @@ def test_the_springs_temperatures_take_a_thermal_effect_beyond_the_structure():
     # nor an effect whose own fit does as well with it switched off
     idle = _cmp(F=1.0, reduction=0.0, gap_after_deg=0.40, abs_reduction_deg=0.0)
     assert not responsible(replace(c, temperatures=_warming(), vs_off=idle))
+
+
+# --- an effect that builds up over use: judged where it has -----------------------------------
+
+def _acting(act_deg):
+    """Five held-out recordings of 20 samples each (and a fitting one, index 5) and two
+    predictions whose tilt differs by ``act_deg[r]`` (RMS, per component) in recording r."""
+    from neck_env.gap.diagnose import built_up_mask
+    rec = np.repeat(np.arange(6), 20)
+    hold = rec < 5
+    d = np.concatenate([np.full(20, a) for a in list(act_deg) + [9.0]])
+    on = SimpleNamespace(tilt_x=d.copy(), tilt_y=d.copy())
+    off = SimpleNamespace(tilt_x=np.zeros_like(d), tilt_y=np.zeros_like(d))
+    return built_up_mask(SimpleNamespace(fit_rec=rec), on, off, hold), rec
+
+
+def test_an_effect_that_builds_up_is_judged_on_the_recordings_where_it_has():
+    from neck_env.gap.diagnose import BUILT_UP_SHARE
+    from neck_env.effects import EFFECTS
+    # third rig 7322, a fatigue: its fit moves the two early held-out recordings by 0.2-0.4
+    # deg and the three late ones by 2.1-2.6 deg
+    m, rec = _acting([0.23, 0.40, 2.09, 2.11, 2.58])
+    assert sorted(set(rec[m])) == [2, 3, 4]
+    # a share of the most, not a size: the same recordings at a tenth of the size ...
+    m10, _ = _acting([0.023, 0.040, 0.209, 0.211, 0.258])
+    assert np.array_equal(m, m10)
+    # ... and the fitting recording (moved most of all) never among them
+    assert not m[rec == 5].any()
+    # just under the share, out; at it, in
+    edge, _ = _acting([BUILT_UP_SHARE * 2.0 - 1e-3, BUILT_UP_SHARE * 2.0, 2.0, 2.0, 2.0])
+    assert sorted(set(rec[edge])) == [1, 2, 3, 4]
+    # once built up it stays: a later recording that excites it less is still judged (third
+    # rig 7313, a fatigue: a low-current pulse between two it moves most)
+    later, _ = _acting([0.2, 2.0, 0.5, 2.1, 2.2])
+    assert sorted(set(rec[later])) == [1, 2, 3, 4]
+    # doing most in the first held-out recording: every one
+    assert _acting([2.0, 0.1, 0.1, 0.1, 0.1])[0] is None
+    # built up in every held-out recording, or fitted off: judged on all of them (None)
+    assert _acting([1.9, 2.0, 2.1, 2.0, 1.95])[0] is None
+    assert _acting([0.0] * 5)[0] is None
+    # the catalogue's one effect that grows with use (gyro drift, out of it, does too)
+    assert {n for n, e in EFFECTS.items() if e.builds_up} == {"sma_fatigue", "gyro_bias_drift"}
+
+
+def test_a_built_up_effect_is_judged_there_and_on_every_recording():
+    from neck_env.gap.diagnose import judgements
+    # pooled over all five held-out recordings the two early ones (nothing to improve) dilute
+    # it below every route; on the three where it has built up it passes (third rig 7331)
+    pooled = _cmp(gap_before_deg=1.41, gap_after_deg=1.17, reduction=0.17,
+                  abs_reduction_deg=0.24, F=1.44, F_crit=1.93, t=2.1, recordings_improved=4,
+                  rec_reduction_median=0.15)
+    there = _cmp(gap_before_deg=0.73, gap_after_deg=0.50, reduction=0.31,
+                 abs_reduction_deg=0.23, F=2.08, F_crit=2.11, t=2.7, recordings=3,
+                 recordings_improved=3, blocks=18, blocks_improved=15)
+    assert not significant(pooled) and not responsible(pooled)
+    assert significant(there)
+    c = replace(pooled, built_up=there, judged_recordings=(7, 10, 13))
+    assert judgements(c) == (c, there) and responsible(c)
+    assert judgements(pooled) == (pooled,)
+    # its fit re-balances the baseline too, and can improve the early recordings as much
+    # (third rig 7313): passing on every recording still names it
+    weak = replace(there, reduction=0.05, F=1.1, t=0.4, recordings_improved=1)
+    assert responsible(replace(_cmp(), built_up=weak))
+    assert not responsible(replace(pooled, built_up=weak))
+    # ... and where it has built up it must also beat the structure on those recordings
+    tie = _cmp(gap_before_deg=0.51, reduction=0.02, abs_reduction_deg=0.01, F=1.04, t=0.3,
+               recordings=3, recordings_improved=2)
+    assert not responsible(replace(pooled, built_up=replace(there, vs_structure=tie,
+                                                            structure_significant=True)))
+    assert responsible(replace(pooled, built_up=replace(there, vs_structure=tie,
+                                                        structure_significant=True,
+                                                        on_structure=_cmp())))
