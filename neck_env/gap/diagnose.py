@@ -93,9 +93,9 @@ WARMING_EFFECTS = ("thermal_coupling",)
 WARMING_MIN_REL = MIN_REL  # the cold neighbours' temperature residual (RMS) must fall by this ...
 WARMING_MIN_ABS_C = 0.1  # ... and by this much, C
 
-# An effect that builds up over use is also judged on the held-out recordings from the first one where
-# its own fit makes it do at least this share of what it does in the recording where it does
-# most: those before hold little of it, and on them the test would only weigh the rig's
+# An effect that builds up over use is also judged on the held-out recordings from the first one
+# where its own fit makes it do at least this share of what it does in the recording where it
+# does most: those before hold little of it, and on them the test would only weigh the rig's
 # structural misfit (third rig 7322, a fatigue: 23-54 % off the three late held-out recordings,
 # none on the two early ones, 22 % pooled). The fit chooses them, never the held-out data.
 BUILT_UP_SHARE = 0.5
