@@ -255,6 +255,18 @@ def test_an_effect_that_does_nothing_in_its_own_fit_is_not_named():
     assert responsible(replace(better, vs_off=_cmp(gap_before_deg=1.2, reduction=2 / 3, F=9.0)))
     # a coupling whose own evidence is the neighbours' warming acts through it
     assert acts(replace(better, vs_off=replace(idle, warming=_warming())))
+    # one far-off fitting recording weighs on the pooled F as it does held out: every other
+    # recording better by half with the effect on is the effect acting (third rig 7315, an IMU
+    # yaw: all ten fitting recordings improved, 37 % the median one, F 1.54 against 1.58)
+    # (a smooth misfit's effective sample count is a handful per recording: 7315's F_crit)
+    far = replace(_five_recordings([2.5, 0.5, 0.5, 0.5, 0.5], [0.0, 0.5, 0.5, 0.5, 0.5]),
+                  F_crit=1.58)
+    assert far.F < far.F_crit and acts(replace(better, vs_off=far))
+    assert responsible(replace(better, vs_off=far))
+    # ... but not a share under the margin on the median recording
+    faint = replace(_five_recordings([2.5, 0.5, 0.5, 0.5, 0.5], [0.0, 0.1, 0.1, 0.1, 0.1]),
+                    F_crit=1.58)
+    assert faint.F < faint.F_crit and not acts(replace(better, vs_off=faint))
     # ... and a coupling named on the warming alone is not asked for the tilt
     weak = _cmp(reduction=0.1, gap_after_deg=0.54, abs_reduction_deg=0.06, F=1.2, t=1.5,
                 warming=_warming(), vs_off=idle)
@@ -746,7 +758,9 @@ def test_the_springs_temperatures_take_a_thermal_effect_beyond_the_structure():
     r = WARMING_MIN_REL - 0.01
     assert not responsible(replace(c, temperatures=_warming(reduction=r, rms_after_C=0.9 * (1 - r),
                                                             abs_reduction_C=0.9 * r)))
-    # the temperatures alone never name an effect on a neck that moves: the tilt must improve
+    # a share of the temperatures alone names nothing on a neck that moves: the tilt must
+    # improve (a thermal model unlike the rig's leaves a misfit any thermal effect takes a part
+    # of: independent 6017, a creep, gave convection 23 %) ...
     weak = replace(c, reduction=0.1, gap_after_deg=0.54, abs_reduction_deg=0.06, F=1.2, t=1.5,
                    temperatures=_warming())
     assert not significant(weak) and not responsible(weak)
@@ -825,3 +839,37 @@ def test_a_built_up_effect_is_judged_there_and_on_every_recording():
     assert responsible(replace(pooled, built_up=replace(there, vs_structure=tie,
                                                         structure_significant=True,
                                                         on_structure=_cmp())))
+
+
+def test_most_of_the_held_out_temperatures_name_a_thermal_effect_on_their_own():
+    from neck_env.gap.diagnose import TEMPERATURES_EXPLAINED, explains_temperatures, grounds
+    # third rig 7318, a supply limit: the nominal refit already follows the tilt (0.135 deg
+    # held out, 0.130 with the limit), the temperatures go 1.86 -> 0.22 C
+    flat = _cmp(gap_before_deg=0.135, gap_after_deg=0.130, reduction=0.04,
+                abs_reduction_deg=0.005, F=1.08, F_crit=1.41, t=0.4, recordings_improved=2)
+    most = _warming(rms_before_C=1.86, rms_after_C=0.22, reduction=0.88, abs_reduction_C=1.64,
+                    F=70.0, F_crit=1.07)
+    assert not significant(flat)
+    named = replace(flat, temperatures=most)
+    assert explains_temperatures(named) and grounds(named) == ("temperatures",)
+    assert responsible(named)
+    # just under the share: a part of the temperatures, which a structural thermal misfit also
+    # leaves (no absent effect took more than 57 % in any kept blind report)
+    r = TEMPERATURES_EXPLAINED - 0.01
+    part = _warming(rms_before_C=1.0, rms_after_C=1.0 - r, reduction=r, abs_reduction_C=r,
+                    F=1 / (1 - r) ** 2, F_crit=1.07)
+    assert not responsible(replace(flat, temperatures=part))
+    assert responsible(replace(flat, temperatures=replace(
+        part, reduction=r + 0.02, rms_after_C=1.0 - r - 0.02, abs_reduction_C=r + 0.02)))
+    # a structural discrepancy that explains the temperatures too takes them away ...
+    assert not responsible(replace(named, temperatures_vs_structure=_warming(
+        F=1.1, reduction=0.05, abs_reduction_C=0.01)))
+    # ... a tilt made significantly worse says something else is in it ...
+    worse = replace(named, gap_after_deg=0.25, reduction=-0.85, F=1 / 3.4)
+    assert not responsible(worse)
+    # ... and the effect must act in its own fit
+    idle = _cmp(F=1.0, reduction=0.0, gap_after_deg=0.40, abs_reduction_deg=0.0,
+                recordings_improved=0, blocks_improved=0)
+    assert not responsible(replace(named, vs_off=idle))
+    # the tilt's own grounds are reported beside it
+    assert grounds(replace(_cmp(), temperatures=most)) == ("tilt", "temperatures")

@@ -167,6 +167,8 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_recording_t": _r(s.rec_t, 2),
             "heldout_recording_abs_reduction_median": _r(s.rec_abs_reduction_median_deg),
             "significant": bool(D.responsible(s)),
+            # the evidence it is named on (``diagnose.grounds``); empty when it is not
+            "grounds": list(D.grounds(s)),
             "significant_vs_nominal": bool(D.significant_any(s)),
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
