@@ -369,6 +369,10 @@ def test_blind_pair_found_by_the_warming_of_the_cold_neighbours(tmp_path):
     assert w["F"] > w["F_crit"] and w["warms"]  # ... the neighbours' thermistors do
     assert coupling["significant"]
     assert single["supply_limit"]["significant"]
+    # the report says on what: coupling on the warming (not the tilt), the limit on the tilt
+    assert "neighbours' warming" in coupling["grounds"] and "tilt" not in coupling["grounds"]
+    assert "tilt" in single["supply_limit"]["grounds"]
+    assert all(bool(e["grounds"]) == e["significant"] for e in rep["effects"])
     assert sorted(rep["verdict"]) == ["supply_limit", "thermal_coupling"]
     assert rep["corrected"]["heldout_reduction"] > 0.4
 

@@ -104,10 +104,10 @@ BUILT_UP_SHARE = 0.5
 
 # The held-out temperatures alone name a thermal effect when it takes at least this share of
 # their residual. A thermal model that differs from the rig's leaves a temperature misfit that
-# an effect can take a part of: in every blind report kept (750 with thermistors, 202 of them
-# effect-free, over four generators and three protocols) no effect absent from the rig took more
-# than 57 % (independent 8007, effect-free), while present ones left unnamed took up to 88 %
-# (third rig 7318, a supply limit)
+# an effect can take a part of: in every blind report kept with thermistors (750 reports of at
+# least 211 distinct rigs, 38 effect-free; four generators, three protocols) no effect absent
+# from the rig took more than 57 % (independent 8007, effect-free), while present ones left
+# unnamed took up to 88 % (third rig 7318, a supply limit)
 TEMPERATURES_EXPLAINED = 0.75
 
 AMBIG_SIZE_DEG = 0.3  # an effect doing at least this much (RMS tilt, on vs off) ...
@@ -1665,7 +1665,7 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
                 f"({100 * w.reduction:+.0f} %, F = {w.F:.1f} > {w.F_crit:.2f}?"
                 + ("" if s.temperatures_vs_structure is None else
                    f"; {100 * s.temperatures_vs_structure.reduction:+.0f} % vs the structure")
-                + f"){'  * heats' if heats(s) else ''}")
+                + f"){'  * explains them' if explains_temperatures(s) else '  * heats' if heats(s) else ''}")
         if s.warming is not None:
             w = s.warming
             say(f"  {'':26s} cold neighbours' temperature {w.rms_before_C:.2f} -> "

@@ -404,6 +404,8 @@ def text_report(rep: dict) -> str:
         ps = ", ".join(f"{k}={v:.3g}" for k, v in e["params"].items())
         L.append(f"  {'*' if e['significant'] else ' '} {e['name']:25s} {e['heldout_gap_before']:.3f} -> "
                  f"{e['heldout_gap_after']:.3f} deg ({100 * e['heldout_reduction']:+5.1f} %, t {e['heldout_t']:.1f})  {ps}")
+        if e.get("grounds"):
+            L.append(f"    {'':25s} named on: {', '.join(e['grounds'])}")
         b = e.get("heldout_built_up")
         if b:
             L.append(f"    {'':25s} where it has built up ({', '.join(b['recordings'])}): "
