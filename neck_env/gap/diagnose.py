@@ -1665,7 +1665,8 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
                 f"({100 * w.reduction:+.0f} %, F = {w.F:.1f} > {w.F_crit:.2f}?"
                 + ("" if s.temperatures_vs_structure is None else
                    f"; {100 * s.temperatures_vs_structure.reduction:+.0f} % vs the structure")
-                + f"){'  * explains them' if explains_temperatures(s) else '  * heats' if heats(s) else ''}")
+                + ")" + ("  * explains them" if explains_temperatures(s)
+                         else "  * heats" if heats(s) else ""))
         if s.warming is not None:
             w = s.warming
             say(f"  {'':26s} cold neighbours' temperature {w.rms_before_C:.2f} -> "
