@@ -479,12 +479,13 @@ def grounds(c: Comparison) -> tuple[str, ...]:
       (``WARMING_EFFECTS``), that warming seen on the held-out thermistors (``warms``);
     * ``temperatures``: it explains most of the held-out temperatures (``explains_temperatures``)
       and acts in its own fit."""
+    acting, heating = acts(c), heats(c)
     labels = ("tilt", "tilt where built up")
     out = [label for label, j in zip(labels, judgements(c))
-           if significant(j) and (beats_structure(j) or heats(c)) and acts(c)]
+           if acting and significant(j) and (beats_structure(j) or heating)]
     if warms(c):
         out.append("neighbours' warming")
-    if explains_temperatures(c) and acts(c):
+    if acting and explains_temperatures(c):
         out.append("temperatures")
     return tuple(out)
 

@@ -151,6 +151,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         s = dg.single_cmp[c.name]
         _, hold = D.sample_masks(data, dg.hold_rec)
         g = D.gap_stats(data, c.pred, hold)
+        named_on = D.grounds(s)
         effects.append({
             "name": c.name,
             "params": {k: _r(v, 6) for k, v in dg.model.effects_of(c.setting(), [c.name])[c.name].items()},
@@ -166,9 +167,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "heldout_recording_reduction_median": _r(s.rec_reduction_median),
             "heldout_recording_t": _r(s.rec_t, 2),
             "heldout_recording_abs_reduction_median": _r(s.rec_abs_reduction_median_deg),
-            "significant": bool(D.responsible(s)),
-            # the evidence it is named on (``diagnose.grounds``); empty when it is not
-            "grounds": list(D.grounds(s)),
+            # responsible (``diagnose.responsible``: any grounds), and the evidence it is named
+            # on (``diagnose.grounds``); empty when it is not
+            "significant": bool(named_on),
+            "grounds": list(named_on),
             "significant_vs_nominal": bool(D.significant_any(s)),
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
