@@ -348,6 +348,61 @@ def test_env_waits_for_the_springs_to_cool_before_an_episode(fw):
         env2.close()
 
 
+def test_env_starts_from_where_a_sticking_backbone_holds_the_neck(monkeypatch):
+    """Springs cold, the neck 1.5 deg off the session's rest reading and not moving (a backbone
+    with stiction holds it: the plant with the catalogue's 0.02 N m of friction stops 0.8 deg
+    off after a 7 A pulse, at 0.05 N m 1.9 deg): no wait brings it back, so ``wait_for_rest``
+    takes it as at rest there after ``stuck_s`` instead of waiting out ``cooldown_s`` -- the
+    rig's protocol would otherwise stop with ``RigNotAtRest`` after 15 min. Off the rest
+    reading and moving, or warm, is not stuck."""
+    import math
+    from dataclasses import replace
+    import neck_env.rig.hardware_env as H
+
+    monkeypatch.setattr(H, "REST", replace(H.REST, stuck_s=2.0))
+    tilt = math.radians(1.5)
+    said: list[str] = []
+    with FakeFirmware(accel=(round(8192 * math.sin(tilt)), 0, round(8192 * math.cos(tilt)))) as fw:
+        env = _env(fw, action_mode="relay", cooldown_s=30.0, remember=False, say=said.append)
+        try:
+            t = time.monotonic()
+            env.reset(seed=0, options={"rest_tilt_deg": (0.0, 0.0), "require_rest": True})
+            r = env.last_rest
+            assert r.at_rest and r.stuck, r
+            assert 2.0 <= r.waited_s < 10.0 and time.monotonic() - t < 15.0
+            assert r.tilt_off_deg == pytest.approx(1.5, abs=0.1)
+            assert math.hypot(*r.rest_tilt_deg) == pytest.approx(1.5, abs=0.1)
+            assert any("backbone holds it there" in m and "nudge" in m for m in said), said
+            # the tilt given as the rest reading: at rest as before, not stuck
+            env.reset(seed=0, options={"rest_tilt_deg": r.rest_tilt_deg, "require_rest": True})
+            assert env.last_rest.at_rest and not env.last_rest.stuck
+        finally:
+            env.close()
+    # a neck off its rest reading that keeps moving is not stuck: it is waited for
+    with FakeFirmware(accel=(round(8192 * math.sin(tilt)), 0, round(8192 * math.cos(tilt)))) as fw:
+        env = _env(fw, action_mode="relay", cooldown_s=4.0, remember=False)
+        stop = False
+
+        def sway() -> None:  # +-1.5 deg about x, a full swing every 1.2 s
+            k = 0
+            while not stop:
+                a = tilt * (1 if (k // 6) % 2 == 0 else -1)
+                fw.accel = (round(8192 * math.sin(a)), 0, round(8192 * math.cos(a)))
+                k += 1
+                time.sleep(0.1)
+
+        import threading
+        th = threading.Thread(target=sway, daemon=True)
+        th.start()
+        try:
+            with pytest.raises(RigNotAtRest, match="not at rest after 4 s"):
+                env.reset(seed=0, options={"rest_tilt_deg": (0.0, 0.0), "require_rest": True})
+        finally:
+            stop = True
+            th.join()
+            env.close()
+
+
 @pytest.mark.parametrize("mask", [0b101, 0b111])
 def test_env_records_the_fitted_thermistors_and_a_sensor_that_drops_out(fw, tmp_path, mask):
     """T1..T3 hold only thermistor readings, one column per fitted thermistor (the model's

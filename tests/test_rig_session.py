@@ -78,6 +78,39 @@ def test_session_records_in_order_asks_for_the_supply_and_resumes(fw, tmp_path):
     assert res.recorded == [] and res.skipped == ["rec_01", "rec_02", "rec_03"] and asked == []
 
 
+def test_session_records_from_where_a_sticking_backbone_holds_the_neck(fw, tmp_path, monkeypatch):
+    """After rec_01 the neck stays 1.5 deg off the session's rest reading with cold springs (a
+    backbone with stiction): the session goes on from there instead of waiting out the rest
+    timeout and stopping, says so, and writes which recordings started stuck, and where, to
+    the session and to ``meta.json`` (``stuck_starts_tilt_deg``)."""
+    import math
+    from dataclasses import replace
+    import neck_env.rig.hardware_env as H
+
+    monkeypatch.setattr(H, "REST", replace(H.REST, stuck_s=2.0))
+    a = math.radians(1.5)
+    said: list[str] = []
+
+    def say(line: str) -> None:
+        said.append(line)
+        if line.startswith("rec_01 done"):
+            fw.accel = (0, round(8192 * math.sin(a)), round(8192 * math.cos(a)))
+
+    folder = tmp_path / "ds"
+    with RigLink(fw.url) as link:
+        res = run_protocol(link, folder, RECS, PLAN, ask=lambda prompt: "", stream_hz=50, say=say)
+    assert res.recorded == ["rec_01", "rec_02", "rec_03"] and res.rested_s < 30.0
+    meta = json.loads((folder / "meta.json").read_text())
+    assert meta["rest_tilt_deg"] == pytest.approx([0.0, 0.0], abs=0.1)
+    stuck = meta["stuck_starts_tilt_deg"]
+    assert sorted(stuck) == ["rec_02", "rec_03"]
+    for v in stuck.values():
+        assert math.hypot(*v) == pytest.approx(1.5, abs=0.1)
+    sess = json.loads((folder / "session.json").read_text())
+    assert sess["done"]["rec_01"]["stuck_at_tilt_deg"] is None
+    assert sum("backbone held the neck" in s for s in said) == 2, said
+
+
 def test_session_refuses_another_protocol_and_foreign_recordings(fw, tmp_path):
     folder = tmp_path / "ds"
     _run(fw, folder, [""], recs=RECS[:1])

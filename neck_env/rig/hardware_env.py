@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -52,8 +52,16 @@ class RestResult:
     tilt_off_deg: float  # tilt from the rest reading (or from the window's start when unknown)
     rest_tilt_deg: tuple[float, float] | None  # the tilt vector held at rest (mean of the window)
     temperature_source: str
+    # at rest off the rest reading: springs cold, the tilt not moving for ``RestCriterion.stuck_s``
+    # (the backbone holds the neck bent: stiction)
+    stuck: bool = False
 
     def describe(self, criterion: RestCriterion = REST) -> str:
+        if self.stuck:
+            return (f"springs cold ({self.hottest_excess_K:+.1f} K from ambient, "
+                    f"{self.temperature_source}) and the neck stopped {self.tilt_off_deg:.2f} deg "
+                    f"from the rest reading, not moving for {criterion.stuck_s:g} s: the backbone "
+                    f"holds it there (stiction, backbone_friction's dead band)")
         return (f"hottest spring {self.hottest_excess_K:+.1f} K from ambient (rest: within "
                 f"{criterion.temperature_K:g} K, {self.temperature_source}), tilt "
                 f"{self.tilt_off_deg:.2f} deg from the rest reading (rest: within "
@@ -125,7 +133,10 @@ class HardwareNeckEnv(gym.Env):
     the neck is at rest (``wait_for_rest``: the springs within `cooldown_margin_C` of ambient
     -- thermistors, else the estimate --, and the tilt steady, or back at a given rest reading,
     for ``REST.settle_s``) or `cooldown_s` has passed (then it goes on, or with
-    ``options={"require_rest": True}`` raises ``RigNotAtRest``). The estimate remembers the
+    ``options={"require_rest": True}`` raises ``RigNotAtRest``). A neck that stops off a given
+    rest reading with its springs cold, not moving for ``REST.stuck_s``, is at rest there
+    (``RestResult.stuck``: a backbone with stiction holds it bent; the episode starts from
+    there, and ``say`` tells the user to nudge it upright). The estimate remembers the
     springs across processes (``neck_env.rig.memory``): a second command right after a first
     waits for the springs the first one heated. The target is upright for the first 2 s.
 
@@ -481,10 +492,12 @@ class HardwareNeckEnv(gym.Env):
         if self.cooldown_s <= 0:
             self.last_rest = None
             return
-        crit = RestCriterion(tilt_deg=REST.tilt_deg, temperature_K=self.cooldown_margin_C,
-                             settle_s=REST.settle_s, timeout_s=self.cooldown_s)
+        crit = replace(REST, temperature_K=self.cooldown_margin_C, timeout_s=self.cooldown_s)
         r = self.wait_for_rest(crit, rest_tilt_deg)
         self.last_rest = r
+        if r.stuck and self.say is not None:
+            self.say(f"the neck is at rest off its rest reading: {r.describe(crit)}; going on "
+                     f"from there (nudge the head upright to start from the rest reading)")
         if not r.at_rest and require:
             raise RigNotAtRest(f"{self.link.port}: the neck is not at rest after "
                                f"{r.waited_s:.0f} s: {r.describe(crit)}; relays off. Check the "
@@ -499,11 +512,17 @@ class HardwareNeckEnv(gym.Env):
         fitted, else the estimate) and the fused IMU tilt within ``criterion.tilt_deg`` of
         ``rest_tilt_deg`` (a tilt vector, deg) -- or, when that is not known, of the tilt at
         the start of the window (a neck still creeping back moves) -- both held for
-        ``criterion.settle_s``. Says how it is going every 15 s through ``say``."""
+        ``criterion.settle_s``. Also at rest, ``stuck``: the springs cold and the tilt off
+        ``rest_tilt_deg`` but within ``criterion.steady_deg`` of where it stopped for
+        ``criterion.stuck_s`` (a backbone with stiction holds the neck bent; waiting longer
+        would not bring it back). Says how it is going every 15 s through ``say``."""
         t0 = time.monotonic()
         held_since: float | None = None
         anchor: tuple[float, float] | None = None
         acc: list[tuple[float, float]] = []
+        still_since: float | None = None  # cold, off the rest reading, and not moving since
+        still_at: tuple[float, float] | None = None
+        still: list[tuple[float, float]] = []
         last_say = t0
         ambient = self.estimate.ambient_C
         while True:
@@ -528,6 +547,17 @@ class HardwareNeckEnv(gym.Env):
                     return RestResult(True, now - t0, excess, off, mean, source)
             else:
                 held_since, anchor = None, None
+            if (rest_tilt_deg is not None and tilt is not None and not ok
+                    and excess <= criterion.temperature_K):
+                if still_at is None or math.hypot(tilt[0] - still_at[0],
+                                                  tilt[1] - still_at[1]) > criterion.steady_deg:
+                    still_since, still_at, still = now, tilt, []
+                still.append(tilt)
+                if now - still_since >= criterion.stuck_s:
+                    mean = (float(np.mean([a[0] for a in still])), float(np.mean([a[1] for a in still])))
+                    return RestResult(True, now - t0, excess, off, mean, source, stuck=True)
+            else:
+                still_since, still_at = None, None
             if now - t0 >= criterion.timeout_s:
                 return RestResult(False, now - t0, excess, off, None, source)
             if self.say is not None and now - last_say >= 15.0:
@@ -681,8 +711,6 @@ class HardwareNeckEnv(gym.Env):
         link and one thermal estimate). Takes effect at the next ``reset``."""
         if self._episode_active:
             raise RuntimeError("set_episode between episodes only")
-        from dataclasses import replace
-
         changes: dict[str, float] = {}
         if supply_current_A is not None:
             changes["supply_current_A"] = float(supply_current_A)

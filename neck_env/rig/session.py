@@ -125,6 +125,10 @@ def _update_meta(record_dir: Path, sess: dict, wire: Mapping[str, float]) -> Non
     meta.update(wire)
     meta["protocol"] = {k: v for k, v in sess["plan"].items()}
     meta["rest_tilt_deg"] = sess["rest_tilt_deg"]
+    stuck = {name: d["stuck_at_tilt_deg"] for name, d in sess["done"].items()
+             if d.get("stuck_at_tilt_deg") is not None}
+    if stuck:  # recordings that started where the backbone held the neck (RestResult.stuck)
+        meta["stuck_starts_tilt_deg"] = stuck
     meta["rest_criterion"] = {"tilt_deg": REST.tilt_deg, "temperature_K": REST.temperature_K,
                               "settle_s": REST.settle_s}
     p.write_text(json.dumps(meta, indent=2) + "\n")
@@ -246,11 +250,18 @@ def run_protocol(link: RigLink, record_dir: str | Path, recordings: Sequence[Rec
             sess["done"][r.name] = {"file": final.name, "rested_s": round(rr.waited_s, 1),
                                     "finished_unix_s": round(time.time(), 1),
                                     "max_theta_deg": round(max_theta, 2),
-                                    "refused_mask": int(refused)}
+                                    "refused_mask": int(refused),
+                                    "stuck_at_tilt_deg": ([round(v, 3) for v in rr.rest_tilt_deg]
+                                                          if rr.stuck else None)}
             _save_session(record_dir, sess)
+            if rr.stuck:
+                _update_meta(record_dir, sess, wire)
             res.recorded.append(r.name)
             note = (f"; the firmware held muscles 0b{refused:03b} off at times (safety limits)"
                     if refused else "")
+            if rr.stuck:
+                note += (f"; started {rr.tilt_off_deg:.2f} deg off the rest reading, where the "
+                         f"backbone held the neck (stiction)")
             say(f"{r.name} done: max theta {max_theta:.1f} deg after {rr.waited_s:.0f} s at rest "
                 f"wait{note}")
     finally:
