@@ -531,6 +531,10 @@ def main(argv=None) -> int:
                     help="the rigs log a Hall sensor's reading of the current that flowed "
                          "(i1_meas..i3_meas), which the diagnosis reads as direct evidence of an "
                          "actuation delay or a supply limit")
+    ap.add_argument("--starts", choices=("upright", "cooled"), default=None,
+                    help="own generator only: every recording starts upright (the default) or "
+                         "where the rig's wait for rest leaves the neck (cooled: a backbone with "
+                         "friction holds it off upright, as on a real rig)")
     ap.add_argument("--no-wire-meta", action="store_true",
                     help="leave the wire's diameter and specific heat out of meta.json (h is then "
                     "not identifiable; the cooling time constant still is)")
@@ -566,8 +570,11 @@ def main(argv=None) -> int:
                              ("n_recordings", args.recordings), ("duration_s", args.duration),
                              ("temperatures", {"always": True, "never": False}.get(args.thermistors)),
                              ("wire_meta", False if args.no_wire_meta else None),
-                             ("current_sensor", True if args.current_sensor else None))
+                             ("current_sensor", True if args.current_sensor else None),
+                             ("starts", args.starts))
            if v is not None}
+    if args.starts is not None and args.generator != "synthetic":
+        ap.error("--starts is an option of the own generator (synthetic) only")
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
     # only when set: folders of earlier runs resume as they were
     options = [flag for flag, on in (("--fit-spring-modulus", args.fit_spring_modulus),

@@ -1511,6 +1511,10 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = F
                t0=t0)
     run.say(f"{data.n_rec} recordings, {note}; ambient {data.ambient:.1f} C ({data.ambient_source})"
             f"{'; temperatures recorded' + _readings_note(data) if data.has_T else ''}")
+    if data.stuck.any():
+        run.say(f"{int(data.stuck.sum())} recording(s) start off the rest reading with the springs "
+                f"cold and the neck not moving (the backbone held it: stiction), simulated from "
+                f"there: {', '.join(n for n, k in zip(data.names, data.stuck) if k)}")
     measured = currents.check(ds)
     for line in currents.describe(measured.to_dict()) if measured is not None else []:
         run.say(line)

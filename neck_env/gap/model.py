@@ -52,6 +52,7 @@ from ..physics import layout as L
 from ..physics.plant import constants_from_params, initial_state, step_inplace
 from ..recording import Dataset
 from ..sensors import accel_tilt_batch, thermistor_lag_series
+from .rest import WINDOW_S, start_tilt, stuck_starts
 
 FIT_SIM_DT_S = 0.02  # the diagnosis simulates at 50 Hz, the rig's sample rate (experiments use 0.01 s)
 FIT_HZ = 10.0  # residuals for fitting / held-out scoring are taken at about this rate
@@ -336,6 +337,7 @@ def clip_to_catalogue(effects: Mapping[str, Mapping[str, float]]) -> dict[str, d
 
 # Setting keys that change only the sensor chain: settings differing in these share a simulation.
 SENSOR_ONLY = ("offset_", "drift_", "imu_misalignment.", "thermistor_lag_s")
+STUCK_SENSOR_ONLY = ("imu_misalignment.", "thermistor_lag_s")  # with stuck starts (``Model.plant_key``)
 
 
 def lagged(T: np.ndarray, t_s: np.ndarray, setting: Mapping[str, float]) -> np.ndarray:
@@ -389,6 +391,17 @@ class Prepared:
     # constant into h, which the recordings alone cannot (h trades with the heat capacity)
     wire_diameter_m: float | None = None
     specific_heat_J_kgK: float | None = None
+    # (R, 2) tilt vector (deg, as read) each recording starts at where the backbone held the
+    # neck off its rest reading (``rest.stuck_starts``), NaN elsewhere: the model starts those
+    # bent there -- a model without stiction springs back at once, one with it holds
+    stuck_start_tilt_deg: np.ndarray | None = None
+
+    @property
+    def stuck(self) -> np.ndarray:
+        """(R,) the recordings that start where the backbone held the neck."""
+        if self.stuck_start_tilt_deg is None:
+            return np.zeros(self.n_rec, bool)
+        return np.isfinite(self.stuck_start_tilt_deg[:, 0])
 
     def rec_slices(self) -> list[np.ndarray]:
         return [np.flatnonzero(self.fit_rec == r) for r in range(self.n_rec)]
@@ -511,7 +524,20 @@ def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
         meas_theta=meas_theta, meas_phi=meas_phi, meas_T=meas_T, ambient=ambient,
         ambient_sigma=amb_sig, ambient_source=src, azimuths=az, sample_hz=sample_hz,
         wire_diameter_m=ds.meta.get("spring_wire_diameter_m"),
-        specific_heat_J_kgK=ds.meta.get("spring_specific_heat_J_kgK"))
+        specific_heat_J_kgK=ds.meta.get("spring_specific_heat_J_kgK"),
+        stuck_start_tilt_deg=_stuck_start_tilts(ds))
+
+
+def _stuck_start_tilts(ds: Dataset) -> np.ndarray | None:
+    """``Prepared.stuck_start_tilt_deg`` (None: no recording starts stuck)."""
+    stuck = stuck_starts(ds)
+    if not stuck:
+        return None
+    out = np.full((len(ds.recordings), 2), np.nan)
+    for k, r in enumerate(ds.recordings):
+        if r.name in stuck:
+            out[k] = start_tilt(r, WINDOW_S)
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -650,10 +676,23 @@ class Model:
             rows[:first, L.CONV_GAIN] = 1.0
         return rows
 
-    @staticmethod
-    def plant_key(setting: Mapping[str, float]) -> tuple:
+    def plant_key(self, setting: Mapping[str, float]) -> tuple:
+        """The part of a setting the plant's simulation depends on: not the sensor's, except
+        the reading's zero where a recording starts stuck (``Prepared.stuck``: its start pose
+        is the start as read minus that zero)."""
+        sensor = SENSOR_ONLY if not self.data.stuck.any() else STUCK_SENSOR_ONLY
         return tuple(sorted((k, round(float(v), 12)) for k, v in setting.items()
-                            if not k.startswith(SENSOR_ONLY)))
+                            if not k.startswith(sensor)))
+
+    def start_pose(self, setting: Mapping[str, float]) -> np.ndarray:
+        """(n_stuck, 2) the bend (rad) of each stuck-start recording at its start: its reading
+        there minus the reading's zero under ``setting`` (offset and drift; for a pure bend the
+        tilt is the bend angle)."""
+        st = self.data.stuck
+        t = self.t_cum0[st]
+        zero = np.column_stack([float(setting.get("offset_x_deg", 0.0)) + drift_offset(setting, "x", t),
+                                float(setting.get("offset_y_deg", 0.0)) + drift_offset(setting, "y", t)])
+        return np.radians(self.data.stuck_start_tilt_deg[st] - zero)
 
     def mount_of(self, setting: Mapping[str, float]) -> np.ndarray | None:
         if "imu_misalignment" not in self.effect_names(setting):
@@ -713,6 +752,9 @@ class Model:
                 cache[dl] = self.delayed_currents(dl)
             cur[:, u * R:(u + 1) * R] = cache[dl]
         x = initial_state(consts)
+        stuck = np.flatnonzero(d.stuck)
+        for u, s in enumerate(reps) if stuck.size else ():
+            x[u * R + stuck, L.S_Q:L.S_Q + 2] = self.start_pose(s)
         fat = consts[:, L.FATIGUE_RATE] > 0
         if np.any(fat):
             x[fat, L.S_FATIGUE:L.S_FATIGUE + 3] = self._fatigue_start(consts, cur, fat)

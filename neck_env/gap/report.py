@@ -284,6 +284,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
                       "actuated": bool(dg.moved_deg >= D.NO_ACTUATION_DEG),
                       "nameable": list(D.nameable(data, dg.moved_deg))},
         "temperature_readings": {k: _r(v, 4) for k, v in data.T_read_share.items()},
+        # recordings that start where the backbone held the neck off its rest reading (the tilt
+        # vector as read there, deg): simulated from there (``rest.stuck_starts``)
+        "stuck_starts": {data.names[r]: [_r(v, 3) for v in data.stuck_start_tilt_deg[r]]
+                         for r in np.flatnonzero(data.stuck)},
         "method": {
             "gap": "RMSE over held-out samples of theta (deg) and phi weighted by "
                    "min(theta_meas, theta_model) / 5 deg (deg), pooled: sqrt((rmse_theta^2 + "
@@ -326,6 +330,11 @@ def text_report(rep: dict) -> str:
     L.append(f"  {len(rep['recordings'])} recordings; held out: {', '.join(rep['heldout_recordings']) or 'last 40 %'}"
              f"; ambient {rep['ambient']['value_C']:.1f} C ({rep['ambient']['source']}); "
              f"temperatures {'used' if rep['temperatures_used'] else 'not recorded'}")
+    stuck = rep.get("stuck_starts") or {}
+    if stuck:
+        L.append(f"  {len(stuck)} recording(s) start at rest off the rest reading, cold and not "
+                 f"moving ({', '.join(stuck)}): the backbone held the neck where the one before "
+                 f"left it (stiction); simulated from there")
     n = rep["nominal"]
     L.append("")
     L.append(f"Nominal model refitted: held-out gap {n['heldout_gap']:.3f} deg "

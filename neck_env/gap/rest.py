@@ -19,10 +19,18 @@ gap, or a false ``unexplained``. :func:`not_at_rest` finds them from the data al
 A start counts as away from rest beyond ``SLACK`` times the rig's own criterion (the rig waits
 until it is within the criterion; the slack leaves room for the sensors' noise). ``neck-gap``
 excludes those recordings with a warning and lists them in the report as ``"not_at_rest"``.
+
+A start off the rest reading is still a start *at rest* when the neck is not moving there and
+the springs are cold (:func:`stuck_starts`): a backbone with stiction holds the neck where the
+recording before left it (the simulator with the catalogue's 0.02 N m of friction stops 0.8 deg
+off upright after a 7 A pulse, 1.9 deg at 0.05 N m), and no wait brings it back. The rig's
+``protocol`` names such recordings in ``meta.json`` (``stuck_starts_tilt_deg``); otherwise they
+are found from the data. They are kept: the diagnosis simulates them from where they start.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -31,19 +39,25 @@ from scipy.optimize import least_squares
 from ..experiments import REST, RestCriterion
 from ..recording import Dataset, Recording
 
-__all__ = ["not_at_rest", "without", "rest_reading", "SLACK", "WINDOW_S"]
+__all__ = ["not_at_rest", "stuck_starts", "start_tilt", "without", "rest_reading", "SLACK", "WINDOW_S"]
 
 SLACK = 2.0
 WINDOW_S = 0.5
 MIN_FOR_TREND = 5  # fewer starts: one rest reading (their median); a line through 3-4 bends too easily
+# the part of a recording before its first command on which a start is judged not moving: long
+# enough that a neck still returning from the recording before shows its motion
+STILL_MIN_S = 1.0
+# starts off the rest reading, at rest there, that show a dataset's neck sticks: one alone can be
+# the sensor's noise (a 0.5 s mean of the fused tilt scatters ~0.2 deg; 0.6 deg is 3 sigma)
+MIN_STUCK = 2
 
 
 def _start(rec: Recording, window_s: float) -> np.ndarray:
     return rec.t <= rec.t[0] + window_s
 
 
-def _start_tilt(rec: Recording, window_s: float) -> np.ndarray:
-    """Mean tilt vector (deg) over the start window."""
+def start_tilt(rec: Recording, window_s: float = WINDOW_S) -> np.ndarray:
+    """Mean tilt vector (deg, as read) over the start window."""
     sel = _start(rec, window_s)
     ph = np.radians(rec.phi_deg[sel])
     th = rec.theta_deg[sel]
@@ -59,7 +73,7 @@ def rest_reading(ds: Dataset, window_s: float = WINDOW_S,
         v = np.asarray(given, float)
         if v.shape == (2,) and np.all(np.isfinite(v)):
             return np.tile(v, (R, 1)), "meta.json rest_tilt_deg"
-    starts = np.array([_start_tilt(r, window_s) for r in ds.recordings])
+    starts = np.array([start_tilt(r, window_s) for r in ds.recordings])
     median = np.median(starts, axis=0)
     if R < MIN_FOR_TREND:
         return np.tile(median, (R, 1)), "median of the recordings' starts"
@@ -74,35 +88,113 @@ def rest_reading(ds: Dataset, window_s: float = WINDOW_S,
     return fit.x[:2] + u * fit.x[2:], "the recordings' starts, a slowly moving rest allowed"
 
 
+def _start_excess(rec: Recording, window_s: float, ambient: float | None) -> float | None:
+    """The warmest spring with a reading over the start window, K above ``ambient`` (None
+    without thermistor readings there or without an ambient)."""
+    if rec.temperatures_C is None or ambient is None:
+        return None
+    block = rec.temperatures_C[_start(rec, window_s)]
+    read = np.isfinite(block)
+    if not read.any():
+        return None
+    means = np.where(read, block, 0.0).sum(axis=0) / np.maximum(read.sum(axis=0), 1)
+    return float(means[read.any(axis=0)].max()) - float(ambient)
+
+
+def _ambient(ds: Dataset, window_s: float) -> float | None:
+    """meta.json's ``ambient_C``, else the coolest spring at any recording's start."""
+    if ds.meta.get("ambient_C") is not None:
+        return float(ds.meta["ambient_C"])
+    known = [e for e in (_start_excess(r, window_s, 0.0) for r in ds.recordings) if e is not None]
+    return min(known) if known else None
+
+
+def _pre_command_motion(rec: Recording, window_s: float) -> np.ndarray | None:
+    """How the tilt vector moves over the part of a recording before its first command (at
+    least ``STILL_MIN_S``): the mean of its last ``window_s`` minus that of its first, deg
+    (None when that part is shorter)."""
+    on = (rec.currents_A > 0).any(axis=1)
+    end = rec.t[int(np.argmax(on))] if on.any() else rec.t[-1]
+    if end - rec.t[0] < STILL_MIN_S:
+        return None
+    ph = np.radians(rec.phi_deg)
+    v = np.column_stack([rec.theta_deg * np.cos(ph), rec.theta_deg * np.sin(ph)])
+    first = v[rec.t <= rec.t[0] + window_s].mean(axis=0)
+    last = v[(rec.t >= end - window_s) & (rec.t < end)].mean(axis=0)
+    return last - first
+
+
+def stuck_starts(ds: Dataset, criterion: RestCriterion = REST, window_s: float = WINDOW_S,
+                 slack: float = SLACK) -> dict[str, np.ndarray]:
+    """Recordings that start at rest where the backbone held the neck (stiction), by name: the
+    start's tilt vector as read (deg). The diagnosis simulates them from there.
+
+    Those ``meta.json`` names (``stuck_starts_tilt_deg``) where it gives the rest reading
+    (``rest_tilt_deg``: the rig's protocol wrote it, and judged every start while waiting for
+    rest). Else from the data, for the dataset as a whole: when at least ``MIN_STUCK`` starts
+    lie more than ``criterion.tilt_deg`` off the rest reading with the neck at rest there (no
+    spring with a reading more than ``slack`` times ``criterion.temperature_K`` above ambient,
+    and not moving before the first command: ``_pre_command_motion`` within three robust
+    standard deviations of the recordings' median one, at least ``criterion.steady_deg``),
+    every start at rest that way. Not one by one: a neck that sticks after most recordings
+    scatters most starts around its rest, and the rest read from them is then uncertain by
+    about the dead band; the model reads each start against the reading's fitted zero
+    (``model.Model.start_pose``), and a start at the rest reading is then simply upright."""
+    return _classify(ds, criterion, window_s, slack)[2]
+
+
+def _classify(ds: Dataset, criterion: RestCriterion, window_s: float,
+              slack: float) -> tuple[np.ndarray, str, dict[str, np.ndarray]]:
+    """(rest reading (R, 2), its source, the stuck starts) for ``stuck_starts`` and
+    ``not_at_rest``."""
+    rest, source = rest_reading(ds, window_s, criterion)
+    starts = {r.name: start_tilt(r, window_s) for r in ds.recordings}
+    if ds.meta.get("rest_tilt_deg") is not None:
+        named = ds.meta.get("stuck_starts_tilt_deg") or {}
+        return rest, source, {k: v for k, v in starts.items() if k in named}
+    ambient = _ambient(ds, window_s)
+    motion = [_pre_command_motion(r, window_s) for r in ds.recordings]
+    known = [m for m in motion if m is not None]
+    # a sensor settling at the start of each recording (a fused tilt whose filter starts from
+    # the accelerometer and then takes up the gyro's bias) moves every start alike, and its
+    # noise moves each a little: the neck moves when its start moves unlike the others, by more
+    # than their spread (three robust standard deviations; a neck still returning from a warm
+    # bend moves ~1 deg over the 2 s before a pulse)
+    common, tol = np.zeros(2), criterion.steady_deg
+    if len(known) >= MIN_FOR_TREND:
+        common = np.median(known, axis=0)
+        dev = np.hypot(*(np.asarray(known) - common).T)
+        tol = max(tol, 3.0 * 1.4826 * float(np.median(dev)) / math.sqrt(2 * math.log(2)))
+    at_rest, far = [], 0
+    for r, m, rest_r in zip(ds.recordings, motion, rest):
+        excess = _start_excess(r, window_s, ambient)
+        cold = excess is None or excess <= slack * criterion.temperature_K
+        if cold and m is not None and np.hypot(*(m - common)) <= tol:
+            at_rest.append(r.name)
+            far += int(np.hypot(*(starts[r.name] - rest_r)) > criterion.tilt_deg)
+    if far < MIN_STUCK:
+        return rest, source, {}
+    return rest, source, {k: starts[k] for k in at_rest}
+
+
 def not_at_rest(ds: Dataset, criterion: RestCriterion = REST, window_s: float = WINDOW_S,
                 slack: float = SLACK) -> list[dict]:
     """The recordings of ``ds`` that do not start at rest, in dataset order: each
     ``{"recording", "tilt_off_deg", "temperature_excess_K" (None without T columns), "why"}``."""
-    rest, source = rest_reading(ds, window_s, criterion)
-    warm: list[float | None] = []
-    for r in ds.recordings:
-        block = None if r.temperatures_C is None else r.temperatures_C[_start(r, window_s)]
-        read = None if block is None else np.isfinite(block)
-        if block is None or not read.any():
-            warm.append(None)
-        else:  # the warmest spring with a reading (a thermistor may be missing or drop out)
-            means = np.where(read, block, 0.0).sum(axis=0) / np.maximum(read.sum(axis=0), 1)
-            warm.append(float(means[read.any(axis=0)].max()))
-    known = [w for w in warm if w is not None]
-    ambient = ds.meta.get("ambient_C")
-    if ambient is None and known:
-        ambient = min(known)
+    rest, source, stuck = _classify(ds, criterion, window_s, slack)
+    ambient = _ambient(ds, window_s)
     out = []
-    for r, w, rest_r in zip(ds.recordings, warm, rest):
-        off = float(np.hypot(*(_start_tilt(r, window_s) - rest_r)))
-        excess = None if (w is None or ambient is None) else w - float(ambient)
+    for r, rest_r in zip(ds.recordings, rest):
+        off = float(np.hypot(*(start_tilt(r, window_s) - rest_r)))
+        # the warmest spring with a reading (a thermistor may be missing or drop out)
+        excess = _start_excess(r, window_s, ambient)
         why = []
-        if off > slack * criterion.tilt_deg:
+        if off > slack * criterion.tilt_deg and r.name not in stuck:
             th0 = float(np.mean(r.theta_deg[_start(r, window_s)]))
             why.append(f"starts {off:.1f} deg from the rest tilt ({source}; theta {th0:.1f} deg "
                        f"in the first {window_s:g} s)")
         if excess is not None and excess > slack * criterion.temperature_K:
-            why.append(f"a spring starts {excess:.1f} K above ambient ({float(ambient):g} C)")
+            why.append(f"a spring starts {excess:.1f} K above ambient ({ambient:g} C)")
         if why:
             out.append({"recording": r.name, "tilt_off_deg": round(off, 3),
                         "temperature_excess_K": None if excess is None else round(excess, 2),

@@ -52,7 +52,7 @@ from ..params import NeckParams, default_params
 from ..physics import layout as L
 from ..physics.plant import (constants_from_params, cooling_time_constant_s, initial_state,
                              step_inplace)
-from ..experiments import (add_dataset_arguments, dataset_arguments, protocol_schedule,
+from ..experiments import (REST, add_dataset_arguments, dataset_arguments, protocol_schedule,
                            truth_path_for)
 from ..recording import write_meta, write_recording
 from . import currents
@@ -181,14 +181,41 @@ def resolve_effects(effects, rng: np.random.Generator,
     return out
 
 
+STARTS = ("upright", "cooled")
+
+
+def _cooled(consts: np.ndarray, x: np.ndarray, dt: float) -> np.ndarray:
+    """The state after the rig's wait for rest from ``x``: relays off until every spring is
+    within ``REST.temperature_K`` of ambient (at most ``REST.timeout_s``), then ``REST.stuck_s``
+    more (what the rig waits before it takes a neck off its rest reading as held there)."""
+    x = x.copy()
+    left = np.full(1, np.inf)
+    o = np.empty((1, L.N_OUT))
+    off = np.zeros((1, 3))
+    amb = consts[0, L.AMBIENT]
+    chunk = max(1, int(round(1.0 / dt)))
+    waited = 0.0
+    while waited < REST.timeout_s and np.max(x[0, L.S_T:L.S_T + 3] - amb) > REST.temperature_K:
+        step_inplace(consts, x, off, dt, chunk, left, o)
+        waited += chunk * dt
+    step_inplace(consts, x, off, dt, max(1, int(round(REST.stuck_s / dt))), left, o)
+    return x
+
+
 def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "mixed",
              n_recordings: int = 15, duration_s: float = 30.0, sample_hz: float = 50.0,
              temperatures: bool | None = None, jitter: float = 0.05,
              truth_path: str | Path | None = None, sensors: SensorParams | None = None,
              write_meta_file: bool = True, hard: bool = False, baseline: str = "default",
              wire_meta: bool = True, switched_off: bool = False,
-             current_sensor: bool = False) -> dict:
+             current_sensor: bool = False, starts: str = "upright") -> dict:
     """Write a synthetic dataset to ``out_dir`` and its truth beside it; returns the truth.
+
+    ``starts``: ``upright`` (every recording starts upright with cold springs, as if the neck
+    were reset between recordings) or ``cooled`` (as the rig's protocol records: between
+    recordings the relays stay off until every spring is within ``REST.temperature_K`` of
+    ambient and then ``REST.stuck_s`` longer, and the next recording starts from that state --
+    upright again, unless the backbone's friction holds the neck off it).
 
     ``switched_off``: the effects are drawn (so that every later draw -- protocol, biases,
     noise -- is the same) but not simulated: the same rig, protocol and noise without them,
@@ -207,6 +234,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     out_dir = Path(out_dir)
     if baseline not in BASELINES:
         raise ValueError(f"unknown baseline {baseline!r}; known: {BASELINES}")
+    if starts not in STARTS:
+        raise ValueError(f"unknown starts {starts!r}; known: {STARTS}")
     rng = np.random.default_rng(seed)
     params = perturbed_params(rng, jitter=jitter, hard=hard)
     if baseline == "wide":
@@ -255,8 +284,11 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         j = np.floor(src_t * sample_hz + 1e-9).astype(int)
         applied = np.where((j >= 0)[:, None], cmd[np.clip(j, 0, n - 1)], 0.0)
         rc = consts if t_cum >= draft_onset else consts_before
-        x = initial_state(rc)
-        x[0, L.S_FATIGUE:L.S_FATIGUE + 3] = fatigue
+        if starts == "cooled" and r > 0:
+            x = _cooled(rc, x, dt)
+        else:
+            x = initial_state(rc)
+            x[0, L.S_FATIGUE:L.S_FATIGUE + 3] = fatigue
         left = np.full(1, np.inf)
         o = np.empty((1, L.N_OUT))
         qs = np.empty((n, 3))
@@ -293,7 +325,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         true_theta = np.degrees(np.hypot(qs[:, 0], qs[:, 1]))
         recs_truth.append({"file": name, "protocol": desc, "t_start_s": t_cum,
                            "peak_T_C": float(Ts.max()), "max_true_theta_deg": float(true_theta.max()),
-                           "fatigue_end": fatigue.tolist()})
+                           "fatigue_end": fatigue.tolist(),
+                           "start_true_tilt_deg": np.degrees(qs[0, :2]).tolist()})
         t_cum += t[-1]
     meta = {"ambient_C": round(params.thermal.ambient_C + float(rng.normal(0.0, 0.3)), 1),
             "sample_hz": sample_hz, "muscle_azimuth_deg": list(params.muscles.azimuths_deg)}
@@ -311,7 +344,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         "sensor_bias": {"accel_g": abias.tolist(), "gyro_dps": gbias.tolist()},
         "recordings": recs_truth, "meta": meta, "integrator_dt_s": dt, "hard": hard,
         "current_sensor": current_sensor,
-        "baseline": baseline, "baseline_ratios": baseline_ratios(params),
+        "baseline": baseline, "baseline_ratios": baseline_ratios(params), "starts": starts,
         "physical": {"convection_W_m2K": params.thermal.convection_W_m2K,
                      "cooling_time_constant_s": cooling_time_constant_s(params)},
     }
@@ -350,10 +383,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="default: the calibrated rig perturbed by a few per cent; wide: a rig "
                          "far from the defaults (h x0.3-x4, transformation temperatures +-15 C, "
                          "EI x0.5-x2, C_A x0.5-x3, ...)")
+    ap.add_argument("--starts", choices=STARTS, default="upright",
+                    help="upright: every recording starts upright (the neck reset between "
+                         "recordings); cooled: from where the rig's wait for rest leaves it "
+                         "(a backbone with friction holds it off upright)")
     args = ap.parse_args(argv)
     try:
         effects, kwargs = dataset_arguments(args)
-        truth = generate(args.out_dir, effects, hard=args.hard, baseline=args.baseline, **kwargs)
+        truth = generate(args.out_dir, effects, hard=args.hard, baseline=args.baseline,
+                         starts=args.starts, **kwargs)
     except (ValueError, json.JSONDecodeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
