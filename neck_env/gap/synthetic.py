@@ -33,7 +33,10 @@ How the "real" rig differs from the nominal model:
   the mount, ``actuation_delay`` shifts the applied currents, ``gyro_bias_drift`` adds a gyro
   bias growing with the dataset's recorded time, ``sma_fatigue`` carries the springs' fatigue
   from recording to recording (file order). Every recording starts at rest (the rig cooled
-  down between recordings); only effects that build up over use carry over.
+  down between recordings); only effects that build up over use carry over. With
+  ``--starts cooled`` the whole state carries over through a simulated wait for rest (relays
+  off until the springs are within 3 K of ambient, then 20 s), as the rig's protocol records:
+  a backbone with friction then holds the neck off upright at the next start.
 """
 
 from __future__ import annotations
