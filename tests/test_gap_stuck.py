@@ -47,13 +47,16 @@ def test_the_generator_leaves_a_sticking_neck_where_the_wait_for_rest_ends(stuck
 
 
 def test_stuck_starts_are_found_and_kept(stuck_ds, tmp_path):
-    """Every start at rest is taken as where the neck was held, and none is excluded; a dataset
-    whose neck returns upright has none, and one whose starts are bent *and moving* (a neck
-    still returning) keeps them out as before (``test_gap_rest``)."""
+    """Every start held clearly off upright is taken as where the neck was held, and none is
+    excluded; a dataset whose neck returns upright has none, and one whose starts are bent
+    *and moving* (a neck still returning) keeps them out as before (``test_gap_rest``)."""
     ds_dir, truth = stuck_ds
     ds = read_dataset(ds_dir)
     stuck = stuck_starts(ds)
-    assert sorted(stuck) == [r.name for r in ds.recordings]
+    off = {r["file"][:-4]: np.hypot(*r["start_true_tilt_deg"]) for r in truth["recordings"]}
+    assert {k for k, v in off.items() if v > 1.0} <= set(stuck), (off, sorted(stuck))
+    for k, v in stuck.items():  # as read: within the sensor's offset and noise of the truth
+        assert abs(np.hypot(*v) - off[k]) < 1.0
     assert not_at_rest(ds) == []
     free_dir = tmp_path / "free"
     generate(free_dir, [], seed=3, n_recordings=8, duration_s=15.0, temperatures=True,
@@ -73,12 +76,12 @@ def test_the_model_starts_a_stuck_recording_where_it_was_read(stuck_ds):
     to that zero, the model with the rig's friction still holds the start."""
     ds_dir, _ = stuck_ds
     data = prepare(read_dataset(ds_dir))
-    assert data.stuck.all()
+    assert data.stuck.sum() >= 6
     model = Model(data)
     zero = {"offset_x_deg": 0.3, "offset_y_deg": -0.2}
     free, held = model.predict([zero, {**zero, "backbone_friction.friction_Nm": 0.05}])
     mx, my = tilt_vec(data.meas_theta, data.meas_phi)
-    for r in range(data.n_rec):
+    for r in np.flatnonzero(data.stuck):
         rows = np.flatnonzero(data.fit_rec == r)
         t = data.t[r][data.fit_idx[rows]] - data.t[r][0]
         t_cmd = t[np.argmax((data.cmd[r][data.fit_idx[rows]] > 0).any(axis=1))]
@@ -102,7 +105,7 @@ def test_neck_gap_names_the_friction_that_holds_the_neck(stuck_ds, tmp_path, cap
     assert gap_main([str(ds_dir), "--json", str(out), "--no-plots"]) == 0
     rep = json.loads(out.read_text())
     console = capsys.readouterr().out
-    assert rep["not_at_rest"] == [] and len(rep["stuck_starts"]) == 8
+    assert rep["not_at_rest"] == [] and len(rep["stuck_starts"]) >= 6
     assert "start at rest off the rest reading" in console
     assert rep["verdict"] == ["backbone_friction"], rep["verdict"]
     fric = next(e for e in rep["effects"] if e["name"] == "backbone_friction")

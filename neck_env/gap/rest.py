@@ -50,6 +50,9 @@ STILL_MIN_S = 1.0
 # starts off the rest reading, at rest there, that show a dataset's neck sticks: one alone can be
 # the sensor's noise (a 0.5 s mean of the fused tilt scatters ~0.2 deg; 0.6 deg is 3 sigma)
 MIN_STUCK = 2
+# a start held off its rest moves before the first command by at most this share of its offset
+# (beyond the recordings' common motion): the sensor's noise on a 0.5 s mean is ~0.2 deg
+STILL_SHARE = 0.5
 
 
 def _start(rec: Recording, window_s: float) -> np.ndarray:
@@ -134,9 +137,9 @@ def stuck_starts(ds: Dataset, criterion: RestCriterion = REST, window_s: float =
     rest). Else from the data, for the dataset as a whole: when at least ``MIN_STUCK`` starts
     lie more than ``criterion.tilt_deg`` off the rest reading with the neck at rest there (no
     spring with a reading more than ``slack`` times ``criterion.temperature_K`` above ambient,
-    and not moving before the first command: ``_pre_command_motion`` within three robust
-    standard deviations of the recordings' median one, at least ``criterion.steady_deg``),
-    every start at rest that way. Not one by one: a neck that sticks after most recordings
+    and still off when the first command comes, having moved less than ``STILL_SHARE`` of its
+    offset beyond the recordings' common motion -- ``_pre_command_motion``), every start at
+    rest that way (moved less than that, cold). Not one by one: a neck that sticks after most recordings
     scatters most starts around its rest, and the rest read from them is then uncertain by
     about the dead band; the model reads each start against the reading's fitted zero
     (``model.Model.start_pose``), and a start at the rest reading is then simply upright."""
@@ -156,22 +159,23 @@ def _classify(ds: Dataset, criterion: RestCriterion, window_s: float,
     motion = [_pre_command_motion(r, window_s) for r in ds.recordings]
     known = [m for m in motion if m is not None]
     # a sensor settling at the start of each recording (a fused tilt whose filter starts from
-    # the accelerometer and then takes up the gyro's bias) moves every start alike, and its
-    # noise moves each a little: the neck moves when its start moves unlike the others, by more
-    # than their spread (three robust standard deviations; a neck still returning from a warm
-    # bend moves ~1 deg over the 2 s before a pulse)
-    common, tol = np.zeros(2), criterion.steady_deg
-    if len(known) >= MIN_FOR_TREND:
-        common = np.median(known, axis=0)
-        dev = np.hypot(*(np.asarray(known) - common).T)
-        tol = max(tol, 3.0 * 1.4826 * float(np.median(dev)) / math.sqrt(2 * math.log(2)))
+    # the accelerometer and then takes up the gyro's bias) moves every start alike: that part
+    # of a start's motion is the sensor's, the rest the neck's (or the reading's own noise)
+    common = np.median(known, axis=0) if len(known) >= MIN_FOR_TREND else np.zeros(2)
     at_rest, far = [], 0
     for r, m, rest_r in zip(ds.recordings, motion, rest):
         excess = _start_excess(r, window_s, ambient)
         cold = excess is None or excess <= slack * criterion.temperature_K
-        if cold and m is not None and np.hypot(*(m - common)) <= tol:
+        if not cold or m is None:
+            continue
+        off = float(np.hypot(*(starts[r.name] - rest_r)))
+        before = float(np.hypot(*(starts[r.name] + m - common - rest_r)))  # at the first command
+        # held: it moved little against how far off it is, and is still off when the first
+        # command comes (a reading that settles back to the rest within the wait is not held)
+        held = float(np.hypot(*(m - common))) <= max(criterion.steady_deg, STILL_SHARE * off)
+        if held:
             at_rest.append(r.name)
-            far += int(np.hypot(*(starts[r.name] - rest_r)) > criterion.tilt_deg)
+            far += int(off > criterion.tilt_deg and before > criterion.tilt_deg)
     if far < MIN_STUCK:
         return rest, source, {}
     return rest, source, {k: starts[k] for k in at_rest}
