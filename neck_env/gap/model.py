@@ -753,8 +753,9 @@ class Model:
             cur[:, u * R:(u + 1) * R] = cache[dl]
         x = initial_state(consts)
         stuck = np.flatnonzero(d.stuck)
-        for u, s in enumerate(reps) if stuck.size else ():
-            x[u * R + stuck, L.S_Q:L.S_Q + 2] = self.start_pose(s)
+        if stuck.size:
+            for u, s in enumerate(reps):
+                x[u * R + stuck, L.S_Q:L.S_Q + 2] = self.start_pose(s)
         fat = consts[:, L.FATIGUE_RATE] > 0
         if np.any(fat):
             x[fat, L.S_FATIGUE:L.S_FATIGUE + 3] = self._fatigue_start(consts, cur, fat)

@@ -30,7 +30,6 @@ are found from the data. They are kept: the diagnosis simulates them from where 
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import numpy as np
@@ -51,7 +50,7 @@ STILL_MIN_S = 1.0
 # the sensor's noise (a 0.5 s mean of the fused tilt scatters ~0.2 deg; 0.6 deg is 3 sigma)
 MIN_STUCK = 2
 # a start held off its rest moves before the first command by at most this share of its offset
-# (beyond the recordings' common motion): the sensor's noise on a 0.5 s mean is ~0.2 deg
+# (beyond the recordings' common motion; a reading that settles back moves by all of it)
 STILL_SHARE = 0.5
 
 
@@ -139,10 +138,10 @@ def stuck_starts(ds: Dataset, criterion: RestCriterion = REST, window_s: float =
     spring with a reading more than ``slack`` times ``criterion.temperature_K`` above ambient,
     and still off when the first command comes, having moved less than ``STILL_SHARE`` of its
     offset beyond the recordings' common motion -- ``_pre_command_motion``), every start at
-    rest that way (moved less than that, cold). Not one by one: a neck that sticks after most recordings
-    scatters most starts around its rest, and the rest read from them is then uncertain by
-    about the dead band; the model reads each start against the reading's fitted zero
-    (``model.Model.start_pose``), and a start at the rest reading is then simply upright."""
+    rest that way (cold, moved less than that). Not one by one: a neck that sticks after most
+    recordings scatters most starts around its rest, and the rest read from them is then
+    uncertain by about the dead band; the model reads each start against the reading's fitted
+    zero (``model.Model.start_pose``), and a start at the rest reading is then simply upright."""
     return _classify(ds, criterion, window_s, slack)[2]
 
 
