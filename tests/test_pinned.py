@@ -14,6 +14,11 @@ import neck_env  # noqa: F401
 from agents import benchmark
 
 RTOL, ATOL = 1e-9, 1e-12
+# the PPO policy's float32 inference goes through torch's CPU kernels, which are chosen by the
+# machine's instruction set and round differently from one CPU to another: the same episode's
+# RMSE came out 3.06227916367 on the machine that pinned it and 3.06227917411 (3.4e-9
+# relative) on a fresh one with the same torch 2.13.0+cpu. Any real change moves it far more.
+POLICY_RTOL = 1e-6
 
 CUR_REWARDS = [-0.021422067194534582, -0.09355236421171388, -0.08738809380611169, -14.693768785463838]
 CUR_REWARD_SUM = -314.9637444534193
@@ -109,4 +114,5 @@ def test_benchmark_episode_is_pinned():
     results = benchmark.run_suite(agents, [1000], log=lambda *a: None)
     for res, name in zip(results, ("pid", "bang_bang", "open_loop_lead", "mpc", "ppo")):
         for k, v in BENCH[name].items():
-            assert res["aggregate"][k] == pytest.approx(v, rel=RTOL), (name, k)
+            rel = POLICY_RTOL if name == "ppo" else RTOL
+            assert res["aggregate"][k] == pytest.approx(v, rel=rel), (name, k)
