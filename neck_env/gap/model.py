@@ -52,7 +52,7 @@ from ..physics import layout as L
 from ..physics.plant import constants_from_params, initial_state, step_inplace
 from ..recording import Dataset
 from ..sensors import accel_tilt_batch, thermistor_lag_series
-from .rest import WINDOW_S, start_tilt, stuck_starts
+from .rest import stuck_starts
 
 FIT_SIM_DT_S = 0.02  # the diagnosis simulates at 50 Hz, the rig's sample rate (experiments use 0.01 s)
 FIT_HZ = 10.0  # residuals for fitting / held-out scoring are taken at about this rate
@@ -396,7 +396,7 @@ class Prepared:
     # bent there -- a model without stiction springs back at once, one with it holds
     stuck_start_tilt_deg: np.ndarray | None = None
 
-    @property
+    @cached_property
     def stuck(self) -> np.ndarray:
         """(R,) the recordings that start where the backbone held the neck."""
         if self.stuck_start_tilt_deg is None:
@@ -533,11 +533,7 @@ def _stuck_start_tilts(ds: Dataset) -> np.ndarray | None:
     stuck = stuck_starts(ds)
     if not stuck:
         return None
-    out = np.full((len(ds.recordings), 2), np.nan)
-    for k, r in enumerate(ds.recordings):
-        if r.name in stuck:
-            out[k] = start_tilt(r, WINDOW_S)
-    return out
+    return np.array([stuck.get(r.name, (np.nan, np.nan)) for r in ds.recordings], float)
 
 
 # --------------------------------------------------------------------------------------------
@@ -599,6 +595,8 @@ class Model:
         self.fit_tcum = np.array([self.t_cum0[r] + data.t[r][j] - data.t[r][0]
                                   for r, j in zip(data.fit_rec, data.fit_idx)])
         self.sim_count = 0  # rig-steps simulated, for timing reports
+        # ``plant_key``'s sensor-only keys: with a held start the reading's zero sets its pose
+        self._sensor_only = STUCK_SENSOR_ONLY if data.stuck.any() else SENSOR_ONLY
 
     # -- settings -> parameters / constants -----------------------------------------------------
     def params_of(self, setting: Mapping[str, float], source: str | None = None) -> NeckParams:
@@ -680,9 +678,8 @@ class Model:
         """The part of a setting the plant's simulation depends on: not the sensor's, except
         the reading's zero where a recording starts stuck (``Prepared.stuck``: its start pose
         is the start as read minus that zero)."""
-        sensor = SENSOR_ONLY if not self.data.stuck.any() else STUCK_SENSOR_ONLY
         return tuple(sorted((k, round(float(v), 12)) for k, v in setting.items()
-                            if not k.startswith(sensor)))
+                            if not k.startswith(self._sensor_only)))
 
     def start_pose(self, setting: Mapping[str, float]) -> np.ndarray:
         """(n_stuck, 2) the bend (rad) of each stuck-start recording at its start: its reading

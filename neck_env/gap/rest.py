@@ -30,7 +30,7 @@ are found from the data. They are kept: the diagnosis simulates them from where 
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -58,12 +58,15 @@ def _start(rec: Recording, window_s: float) -> np.ndarray:
     return rec.t <= rec.t[0] + window_s
 
 
+def _tilt_xy(rec: Recording) -> np.ndarray:
+    """(n, 2) tilt vector (deg, as read) of every sample."""
+    ph = np.radians(rec.phi_deg)
+    return np.column_stack([rec.theta_deg * np.cos(ph), rec.theta_deg * np.sin(ph)])
+
+
 def start_tilt(rec: Recording, window_s: float = WINDOW_S) -> np.ndarray:
     """Mean tilt vector (deg, as read) over the start window."""
-    sel = _start(rec, window_s)
-    ph = np.radians(rec.phi_deg[sel])
-    th = rec.theta_deg[sel]
-    return np.array([np.mean(th * np.cos(ph)), np.mean(th * np.sin(ph))])
+    return _tilt_xy(rec)[_start(rec, window_s)].mean(axis=0)
 
 
 def rest_reading(ds: Dataset, window_s: float = WINDOW_S,
@@ -119,8 +122,7 @@ def _pre_command_motion(rec: Recording, window_s: float) -> np.ndarray | None:
     end = rec.t[int(np.argmax(on))] if on.any() else rec.t[-1]
     if end - rec.t[0] < STILL_MIN_S:
         return None
-    ph = np.radians(rec.phi_deg)
-    v = np.column_stack([rec.theta_deg * np.cos(ph), rec.theta_deg * np.sin(ph)])
+    v = _tilt_xy(rec)
     first = v[rec.t <= rec.t[0] + window_s].mean(axis=0)
     last = v[(rec.t >= end - window_s) & (rec.t < end)].mean(axis=0)
     return last - first
@@ -142,19 +144,29 @@ def stuck_starts(ds: Dataset, criterion: RestCriterion = REST, window_s: float =
     recordings scatters most starts around its rest, and the rest read from them is then
     uncertain by about the dead band; the model reads each start against the reading's fitted
     zero (``model.Model.start_pose``), and a start at the rest reading is then simply upright."""
-    return _classify(ds, criterion, window_s, slack)[2]
+    return _classify(ds, criterion, window_s, slack).stuck
 
 
-def _classify(ds: Dataset, criterion: RestCriterion, window_s: float,
-              slack: float) -> tuple[np.ndarray, str, dict[str, np.ndarray]]:
-    """(rest reading (R, 2), its source, the stuck starts) for ``stuck_starts`` and
-    ``not_at_rest``."""
+@dataclass(frozen=True)
+class _Starts:
+    """What ``stuck_starts`` and ``not_at_rest`` both read off the recordings' starts."""
+
+    rest: np.ndarray  # (R, 2) the rest reading at each start
+    source: str  # where the rest reading comes from
+    starts: dict[str, np.ndarray]  # each recording's start tilt vector as read
+    ambient: float | None  # ``_ambient``
+    stuck: dict[str, np.ndarray]  # the held starts (``stuck_starts``)
+
+
+def _classify(ds: Dataset, criterion: RestCriterion, window_s: float, slack: float) -> _Starts:
+    """The starts read once for ``stuck_starts`` and ``not_at_rest``."""
     rest, source = rest_reading(ds, window_s, criterion)
     starts = {r.name: start_tilt(r, window_s) for r in ds.recordings}
+    ambient = _ambient(ds, window_s)
     if ds.meta.get("rest_tilt_deg") is not None:
         named = ds.meta.get("stuck_starts_tilt_deg") or {}
-        return rest, source, {k: v for k, v in starts.items() if k in named}
-    ambient = _ambient(ds, window_s)
+        return _Starts(rest, source, starts, ambient,
+                       {k: v for k, v in starts.items() if k in named})
     motion = [_pre_command_motion(r, window_s) for r in ds.recordings]
     known = [m for m in motion if m is not None]
     # a sensor settling at the start of each recording (a fused tilt whose filter starts from
@@ -175,24 +187,23 @@ def _classify(ds: Dataset, criterion: RestCriterion, window_s: float,
         if held:
             at_rest.append(r.name)
             far += int(off > criterion.tilt_deg and before > criterion.tilt_deg)
-    if far < MIN_STUCK:
-        return rest, source, {}
-    return rest, source, {k: starts[k] for k in at_rest}
+    stuck = {k: starts[k] for k in at_rest} if far >= MIN_STUCK else {}
+    return _Starts(rest, source, starts, ambient, stuck)
 
 
 def not_at_rest(ds: Dataset, criterion: RestCriterion = REST, window_s: float = WINDOW_S,
                 slack: float = SLACK) -> list[dict]:
     """The recordings of ``ds`` that do not start at rest, in dataset order: each
     ``{"recording", "tilt_off_deg", "temperature_excess_K" (None without T columns), "why"}``."""
-    rest, source, stuck = _classify(ds, criterion, window_s, slack)
-    ambient = _ambient(ds, window_s)
+    seen = _classify(ds, criterion, window_s, slack)
+    source, ambient = seen.source, seen.ambient
     out = []
-    for r, rest_r in zip(ds.recordings, rest):
-        off = float(np.hypot(*(start_tilt(r, window_s) - rest_r)))
+    for r, rest_r in zip(ds.recordings, seen.rest):
+        off = float(np.hypot(*(seen.starts[r.name] - rest_r)))
         # the warmest spring with a reading (a thermistor may be missing or drop out)
         excess = _start_excess(r, window_s, ambient)
         why = []
-        if off > slack * criterion.tilt_deg and r.name not in stuck:
+        if off > slack * criterion.tilt_deg and r.name not in seen.stuck:
             th0 = float(np.mean(r.theta_deg[_start(r, window_s)]))
             why.append(f"starts {off:.1f} deg from the rest tilt ({source}; theta {th0:.1f} deg "
                        f"in the first {window_s:g} s)")
