@@ -222,3 +222,35 @@ def test_bad_input_is_named(tmp_path):
     with pytest.raises(ValueError, match="unknown parameter"):
         ind.generate(tmp_path / "x", {"actuation_delay": {"delay": 0.3}})
     assert ind.main([str(tmp_path / "y"), "--effects", "bogus"]) == 2
+
+
+def test_cooled_starts_carry_the_state_through_the_wait_for_rest(tmp_path):
+    """``starts="cooled"``: the state carries over through the rig protocol's wait (relays off
+    until the springs are within 3 K of ambient, then 20 s), so this rig's own stiction holds
+    the neck off upright at the next start: less than the own model's (cold pennate springs
+    pull it back; 0.46-0.53 deg at 0.05 N m on seed 3's rig), but clearly more than the same
+    rig without friction (under 0.06 deg: the cold springs' hysteresis). ``upright`` resets
+    every start, as before."""
+    fr = {"backbone_friction": {"friction_Nm": 0.05}}
+    _, held = _small(tmp_path, "held", fr, seed=3, starts="cooled", temperatures=True)
+    _, free = _small(tmp_path, "free", None, seed=3, starts="cooled", temperatures=True)
+    _, reset = _small(tmp_path, "reset", fr, seed=3, temperatures=True)
+    off = lambda truth: [float(np.hypot(*r["start_true_tilt_deg"])) for r in truth["recordings"]]
+    assert off(held)[0] == 0.0 and off(reset) == [0.0] * 6
+    assert min(off(held)[1:]) > 0.3, off(held)
+    assert max(off(free)) < 0.1, off(free)
+    # the wait itself: at least the 20 s hold, longer after a pulse (the springs cool first)
+    waits = [r["waited_s"] for r in held["recordings"][1:]]
+    assert min(waits) >= 20.0 and max(waits) > 25.0, waits
+    # its end is where the next recording starts: simulating the wait again lands there
+    p = ind.CALIBRATED
+    state, fat = ind.rest_state(p), np.zeros(6)
+    _, cmd = _pulse_cmd(7.0)
+    ind.simulate_recording(p, cmd, effects=fr, fatigue_state=fat, state=state)
+    assert state[:6].max() > p.ambient_C + 20  # hot at the end of the recording
+    ind.wait_for_rest(p, state, fat, fr)
+    assert state[:6].max() - p.ambient_C <= 3.0 and np.hypot(*state[24:26]) > 0.0
+    with pytest.raises(ValueError, match="unknown starts 'warm'"):
+        ind.generate(tmp_path / "x", None, starts="warm")
+    with pytest.raises(ValueError, match="state must be"):
+        ind.simulate_recording(p, cmd, state=np.zeros(3))

@@ -141,7 +141,10 @@ gyro_bias_drift           (not in the catalogue) gyro bias growing along a rando
 
 Every recording starts at rest (upright, springs at ambient and fully martensite, filter
 initialised from the accelerometer); only fatigue, the gyro drift and a started draft carry over
-in file order. For one seed the rig, the protocol and the sensor noise do not depend on the
+in file order. With ``starts="cooled"`` the whole plant state carries over instead, through the
+rig protocol's wait for rest (``wait_for_rest``): a backbone with stiction then holds the neck
+where its return stopped (0.5-1 deg at 0.05 N m on wide baselines; the cold pennate springs pull
+it further back than the own model's backbone alone). For one seed the rig, the protocol and the sensor noise do not depend on the
 effects (separate random streams), so two datasets of one seed differ by the effect alone.
 
 Generation takes ~2 s for 15 x 30 s at 50 Hz once numba has compiled the plant (first use on a
@@ -189,7 +192,7 @@ import numpy as np
 from numba import njit
 
 from neck_env.effects import CATALOGUE, EFFECTS
-from neck_env.experiments import (PROTOCOLS, add_dataset_arguments, dataset_arguments,
+from neck_env.experiments import (PROTOCOLS, REST, add_dataset_arguments, dataset_arguments,
                                   diagnosis_protocol, truth_path_for)
 from neck_env.recording import write_meta, write_recording
 from neck_env.gap import currents
@@ -467,10 +470,11 @@ def _heat_phase(T, xi, xr, xf, gam, gp, gL, mc, hAdt, mdH, rhs0, P):
 
 
 @njit(cache=True)
-def _simulate(cmd, sub, dt, P, A, B, ncoil, wlen, lfree, muscle, fatN, q_out, T_out, xi_out,
+def _simulate(cmd, sub, dt, P, A, B, ncoil, wlen, lfree, muscle, fatN, st, q_out, T_out, xi_out,
               I_out):
-    """Integrate one recording from rest. cmd (n, 3) commanded currents at the samples (zero-
-    order hold); fatN (6,) accumulated transformation, updated in place."""
+    """Integrate one recording from the state st (N_STATE,), left in st at its end. cmd (n, 3)
+    commanded currents at the samples (zero-order hold); fatN (6,) accumulated transformation,
+    updated in place."""
     n = cmd.shape[0]
     ns = A.shape[0]
     Ts = dt * sub
@@ -481,13 +485,13 @@ def _simulate(cmd, sub, dt, P, A, B, ncoil, wlen, lfree, muscle, fatN, q_out, T_
     for s in range(ns):
         mass[s] = P[P_DENS] * Ax * wlen[s]
         area[s] = math.pi * d * wlen[s]
-    T = np.full(ns, P[P_TAMB])
-    xi = np.ones(ns)
-    xr = np.ones(ns)
-    xf = np.ones(ns)
+    T = st[0:ns].copy()
+    xi = st[ns:2 * ns].copy()
+    xr = st[2 * ns:3 * ns].copy()
+    xf = st[3 * ns:4 * ns].copy()
     gam_p = np.zeros(ns)
     gam_L = np.zeros(ns)
-    y = np.zeros(6)
+    y = st[4 * ns:4 * ns + 6].copy()
     k1 = np.zeros(6)
     k2 = np.zeros(6)
     k3 = np.zeros(6)
@@ -595,6 +599,11 @@ def _simulate(cmd, sub, dt, P, A, B, ncoil, wlen, lfree, muscle, fatN, q_out, T_
             _deriv(yt, xi, gam_p, gam_L, P, A, B, ncoil, lfree, buf, fo, vs, k4)
             for i in range(6):
                 y[i] += dt * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i]) / 6.0
+    st[0:ns] = T
+    st[ns:2 * ns] = xi
+    st[2 * ns:3 * ns] = xr
+    st[3 * ns:4 * ns] = xf
+    st[4 * ns:4 * ns + 6] = y
 
 
 # -- one rig: parameters + effects -> packed constants ------------------------------------------
@@ -651,13 +660,27 @@ def _substeps(sample_hz: float) -> tuple[int, float]:
     return sub, Ts / sub
 
 
+STARTS = ("upright", "cooled")
+N_STATE = 4 * 6 + 6  # per spring T, xi, xr, xf; the head's q, dq/dt and Maxwell branch (2 each)
+
+
+def rest_state(p: RigParams) -> np.ndarray:
+    """The plant at rest: upright, still, springs at ambient and fully martensite."""
+    st = np.zeros(N_STATE)
+    st[0:6] = p.ambient_C
+    st[6:24] = 1.0
+    return st
+
+
 def simulate_recording(p: RigParams, currents_A: np.ndarray, sample_hz: float = 50.0,
                        effects: Mapping[str, Mapping[str, float]] | None = None,
-                       h_multiplier: float = 1.0, fatigue_state: np.ndarray | None = None) -> dict:
-    """Integrate one recording from rest; returns the true states at the sample times.
+                       h_multiplier: float = 1.0, fatigue_state: np.ndarray | None = None,
+                       state: np.ndarray | None = None) -> dict:
+    """Integrate one recording; returns the true states at the sample times.
 
     ``currents_A`` (n, 3): commanded currents at the samples. ``fatigue_state`` (6,) is updated
-    in place (accumulated transformation sum |d xi| per spring)."""
+    in place (accumulated transformation sum |d xi| per spring). ``state`` (``N_STATE``,): where
+    the recording starts (default: ``rest_state``), updated in place to where it ends."""
     cmd = np.ascontiguousarray(currents_A, dtype=float)
     if cmd.ndim != 2 or cmd.shape[1] != 3:
         raise ValueError(f"currents_A must have shape (n, 3), got {cmd.shape}")
@@ -666,13 +689,35 @@ def simulate_recording(p: RigParams, currents_A: np.ndarray, sample_hz: float = 
     heads, anchors, coils, wire, free = _geometry(p.gamma_L)
     muscle = np.repeat(np.arange(3), 2)
     fat = fatigue_state if fatigue_state is not None else np.zeros(6)
+    st = state if state is not None else rest_state(p)
+    if st.shape != (N_STATE,) or st.dtype != np.float64:
+        raise ValueError(f"state must be a float64 array of shape ({N_STATE},), got "
+                         f"{st.dtype} {st.shape}")
     sub, dt = _substeps(sample_hz)
     n = cmd.shape[0]
     q, T, xi, I = np.zeros((n, 2)), np.zeros((n, 6)), np.zeros((n, 6)), np.zeros((n, 3))
-    _simulate(cmd, sub, dt, P, heads, anchors, coils, wire, free, muscle, fat, q, T, xi, I)
+    _simulate(cmd, sub, dt, P, heads, anchors, coils, wire, free, muscle, fat, st, q, T, xi, I)
     theta = np.degrees(np.hypot(q[:, 0], q[:, 1]))
     phi = np.mod(np.degrees(np.arctan2(q[:, 1], q[:, 0])), 360.0)
     return {"q": q, "theta_deg": theta, "phi_deg": phi, "T_C": T, "xi": xi, "I_A": I}
+
+
+def wait_for_rest(p: RigParams, state: np.ndarray, fatigue_state: np.ndarray,
+                  effects: Mapping[str, Mapping[str, float]] | None = None,
+                  h_multiplier: float = 1.0, sample_hz: float = 50.0) -> float:
+    """The rig protocol's wait between recordings (``neck_env.experiments.REST``), relays off:
+    until every spring is within ``REST.temperature_K`` of ambient (at most ``REST.timeout_s``),
+    then ``REST.stuck_s`` more, the longest the rig waits before it records from a neck held
+    where it stopped. ``state`` is updated in place; returns the seconds waited."""
+    n = int(round(sample_hz)) + 1  # 1 s chunks: the springs' temperatures checked each second
+    off = np.zeros((n, 3))
+    waited = 0.0
+    while waited < REST.timeout_s and np.max(state[0:6]) - p.ambient_C > REST.temperature_K:
+        simulate_recording(p, off, sample_hz, effects, h_multiplier, fatigue_state, state)
+        waited += n / sample_hz
+    n = int(round(REST.stuck_s * sample_hz))
+    simulate_recording(p, np.zeros((n, 3)), sample_hz, effects, h_multiplier, fatigue_state, state)
+    return waited + n / sample_hz
 
 
 # -- calibration --------------------------------------------------------------------------------
@@ -948,8 +993,12 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
              n_recordings: int = 15, duration_s: float = 30.0, sample_hz: float = 50.0,
              temperatures: bool | None = None, baseline: str = "wide",
              truth_path: str | Path | None = None, wire_meta: bool = True,
-             current_sensor: bool = False) -> dict:
+             current_sensor: bool = False, starts: str = "upright") -> dict:
     """Write a dataset of this independent rig to ``out_dir`` and its truth beside it.
+
+    ``starts``: ``upright`` (every recording starts at rest upright, as if the neck were reset
+    between recordings) or ``cooled`` (as the rig's protocol records: the whole state carries
+    over through ``wait_for_rest``, so a backbone with friction may hold the neck off upright).
 
     ``wire_meta``: meta.json gives the wire as its builder knows it: the diameter, and the
     datasheet's specific heat (the calibrated value), not this rig's drawn one.
@@ -961,6 +1010,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     (given parameters override the drawn ones). Returns the truth dict."""
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}; known: {PROTOCOLS}")
+    if starts not in STARTS:
+        raise ValueError(f"unknown starts {starts!r}; known: {STARTS}")
     if not (sample_hz > 0 and math.isfinite(sample_hz)):
         raise ValueError(f"sample_hz must be > 0, got {sample_hz!r}")
     out_dir = Path(out_dir)
@@ -1001,6 +1052,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     for old in out_dir.glob("*.csv"):
         old.unlink()
     fatigue = np.zeros(6)
+    state = rest_state(p)
     t_cum = 0.0
     rec_truth = []
     plant_eff = {k: v for k, v in eff.items() if k not in ("imu_misalignment", "gyro_bias_drift")}
@@ -1012,7 +1064,13 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         cc = eff.get("convection_change")
         if cc is not None and cc["mode"] == "draft" and i >= cc["from_recording_index"]:
             hmul = cc["gain"]
-        sim = simulate_recording(p, cmd, sample_hz, plant_eff, hmul, fatigue)
+        waited = 0.0
+        if starts == "cooled" and i > 0:
+            waited = wait_for_rest(p, state, fatigue, plant_eff, hmul, sample_hz)
+            t_cum += waited
+        else:
+            state = rest_state(p)
+        sim = simulate_recording(p, cmd, sample_hz, plant_eff, hmul, fatigue, state)
         theta, phi = _imu(sim["q"], sample_hz, mount, imu, t_cum, rng)
         t_cum += t[-1] + 1.0 / sample_hz
         cols = {"t": t, "i1": cmd[:, 0], "i2": cmd[:, 1], "i3": cmd[:, 2],
@@ -1025,7 +1083,9 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         fname = f"{rec.name}.csv"
         write_recording(out_dir / fname, cols)
         rec_truth.append({"file": fname, "protocol": rec.description, "h_multiplier": hmul,
-                          "max_theta_true_deg": round(float(sim["theta_deg"].max()), 3)})
+                          "max_theta_true_deg": round(float(sim["theta_deg"].max()), 3),
+                          "start_true_tilt_deg": np.degrees(sim["q"][0]).tolist(),
+                          "waited_s": round(waited, 2)})
     meta = {"ambient_C": round(p.ambient_C + float(r_base.uniform(-0.3, 0.3)), 2),
             "sample_hz": sample_hz, "muscle_azimuth_deg": list(MUSCLE_AZIMUTH_DEG)}
     if wire_meta:
@@ -1038,6 +1098,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
                  "kind": baseline, "ratios": ratios})
     truth = {
         "generator": GENERATOR, "seed": seed, "protocol": protocol, "sample_hz": sample_hz,
+        "starts": starts,
         "effects": eff, "effect_names": sorted(eff),
         "catalogued": sorted(e for e in eff if e in CATALOGUE),
         "temperatures": bool(temperatures), "baseline": base,
@@ -1073,6 +1134,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="redo the Table 1 fit and print the constants and the table")
     add_dataset_arguments(ap, list(EFFECTS))
     ap.add_argument("--baseline", choices=("wide", "default"), default="wide")
+    ap.add_argument("--starts", choices=STARTS, default="upright",
+                    help="upright: every recording starts upright (the neck reset between "
+                         "recordings); cooled: from where the rig's wait for rest leaves it")
     args = ap.parse_args(argv)
     if args.calibrate:
         print("current constants:")
@@ -1091,7 +1155,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         effects, kwargs = dataset_arguments(args)
         t0 = time.perf_counter()
-        truth = generate(args.out_dir, effects, baseline=args.baseline, **kwargs)
+        truth = generate(args.out_dir, effects, baseline=args.baseline, starts=args.starts,
+                         **kwargs)
     except (ValueError, json.JSONDecodeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
