@@ -532,8 +532,7 @@ def main(argv=None) -> int:
                          "(i1_meas..i3_meas), which the diagnosis reads as direct evidence of an "
                          "actuation delay or a supply limit")
     ap.add_argument("--starts", choices=("upright", "cooled"), default=None,
-                    help="own and independent generators: every recording starts upright (the "
-                         "default) or "
+                    help="every recording starts upright (the default) or "
                          "where the rig's wait for rest leaves the neck (cooled: a backbone with "
                          "friction holds it off upright, as on a real rig)")
     ap.add_argument("--no-wire-meta", action="store_true",
@@ -574,9 +573,6 @@ def main(argv=None) -> int:
                              ("current_sensor", True if args.current_sensor else None),
                              ("starts", args.starts))
            if v is not None}
-    if args.starts is not None and args.generator == "third":
-        ap.error("--starts is an option of the own and the independent generators (the third "
-                 "rig resets the neck before every recording)")
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
     # only when set: folders of earlier runs resume as they were
     options = [flag for flag, on in (("--fit-spring-modulus", args.fit_spring_modulus),

@@ -253,3 +253,25 @@ def test_drawn_effects_within_catalogue_ranges(root):
     r_cold = third._cold_muscle_ohm(third.Rig(**{k: v for k, v in truth["baseline"].items()
                                                  if k not in ("kind", "ratios")}))
     assert 4.5 - 1e-6 <= sl["compliance_V"] / (r_cold + sl["wiring_ohm"]) <= 5.8 + 1e-6
+
+
+def test_cooled_starts_carry_the_state_through_the_wait_for_rest(root):
+    """``starts="cooled"``: the plant state carries over through the rig protocol's wait
+    (wires within 3 K of ambient, then 20 s). This rig's friction holds the neck off upright at
+    the next start; without friction the default rig returns upright (a wide rig whose springs
+    stay partly austenite at ambient does not: 0.3-0.5 deg on seed 3's), never reset."""
+    free, _ = gen(root, None, starts="cooled")
+    held, _ = gen(root, {"backbone_friction": {"friction_Nm": 0.05}}, starts="cooled")
+    reset, _ = gen(root, {"backbone_friction": {"friction_Nm": 0.05}})
+    off = lambda truth: np.array([np.hypot(*r["start_true_tilt_deg"]) for r in truth["recordings"]])
+    assert off(free)[0] == 0.0 and off(held)[0] == 0.0 and off(reset).max() == 0.0
+    # one recording's pulse leaves at least one start clearly off; friction adds to every one
+    # default rig: 0.375-0.390 deg held at 0.05 N m, under 0.01 deg without friction
+    assert off(held)[1:].min() > 0.3 and off(free).max() < 0.05
+    waits = [r["waited_s"] for r in held["recordings"][1:]]
+    assert min(waits) >= 20.0, waits
+    rig = third.calibrated_rig()
+    with pytest.raises(ValueError, match="state must be"):
+        third.simulate_true(rig, np.zeros((10, 3)), state=np.zeros(4))
+    with pytest.raises(ValueError, match="unknown starts 'warm'"):
+        third.generate(root / "x", None, starts="warm")

@@ -141,7 +141,10 @@ Known limits
   > 2 deg at 30 s in 16 -- 12 because the wire is still hot (h x0.3..0.8: cooling time constant
   up to ~22 s, plus the post node), 4 because the springs stay partly austenite at ambient
   (shift below ~-5 C in a ~30 C room). Every recording still starts from rest, as the
-  protocol demands.
+  protocol demands -- upright, unless ``starts="cooled"`` carries the state over through the
+  rig's wait for rest (``wait_for_rest``): then friction holds the neck where its return
+  stopped (0.38 deg at 0.05 N m on the default rig) and a rig whose springs stay partly
+  austenite at ambient starts bent without any (0.3-0.5 deg on seed 3's wide rig).
 """
 
 from __future__ import annotations
@@ -159,7 +162,7 @@ import numpy as np
 from numba import njit
 
 from neck_env.effects import CATALOGUE, EFFECTS
-from neck_env.experiments import (add_dataset_arguments, dataset_arguments, diagnosis_protocol,
+from neck_env.experiments import (REST, add_dataset_arguments, dataset_arguments, diagnosis_protocol,
                                   truth_path_for)
 from neck_env.recording import write_meta, write_recording
 from neck_env.gap import currents
@@ -344,11 +347,13 @@ def _solve(A, b):
 
 
 @njit(cache=True)
-def _simulate(cmd, P, attach, anchors, fatigue_cum, imu_every):
+def _simulate(cmd, P, attach, anchors, fatigue_cum, imu_every, st):
     """Plant at DT_S: joints (linearly implicit Euler), spring phase kinetics, two-node heat.
 
-    cmd (n, 3) currents at the plant steps (already delayed); returns at every ``imu_every``-th
-    step: head rotation (9), IMU point (3), wire temperatures (6), true theta (deg), true phi."""
+    cmd (n, 3) currents at the plant steps (already delayed); st (N_STATE,) the state it starts
+    from, left there at its end (joint angles, rates, creep branch, xi, wire and post
+    temperatures); returns at every ``imu_every``-th step: head rotation (9), IMU point (3),
+    wire temperatures (6), true theta (deg), true phi."""
     n = cmd.shape[0]
     n_out = (n - 1) // imu_every + 1
     out_R = np.zeros((n_out, 9))
@@ -411,11 +416,17 @@ def _simulate(cmd, P, attach, anchors, fatigue_cum, imu_every):
     Jv = np.empty((N_SEG + 1, 3, nq))
     Jw = np.empty((N_SEG + 1, 3, nq))
     JL = np.empty((6, nq))
-    # installation: each cold spring stretched to recoverable extension + pretension
+    # installation: each cold spring stretched to recoverable extension + pretension, upright
     _fk(q, head_com, attach, anchors, rots, coms, lens, plate, imu)
     L0 = np.empty(6)
     for s in range(6):
         L0[s] = lens[s] - dL - PRETENSION_N / kM
+    q[:] = st[0:nq]
+    v[:] = st[nq:2 * nq]
+    qv[:] = st[2 * nq:3 * nq]
+    xi[:] = st[3 * nq:3 * nq + 6]
+    Tw[:] = st[3 * nq + 6:3 * nq + 12]
+    Tp[:] = st[3 * nq + 12:3 * nq + 15]
     F = np.zeros(6)
     hstep = 1e-6
     for it in range(n):
@@ -552,6 +563,12 @@ def _simulate(cmd, P, attach, anchors, fatigue_cum, imu_every):
             q_p = (POST_G_W_K * (Tw[2 * m] - Tp[m]) + POST_G_W_K * (Tw[2 * m + 1] - Tp[m])
                    - POST_HA_W_K * (hp / H_NOMINAL_W_M2K) * (Tp[m] - T_amb))
             Tp[m] += DT_S * q_p / c_post
+    st[0:nq] = q
+    st[nq:2 * nq] = v
+    st[2 * nq:3 * nq] = qv
+    st[3 * nq:3 * nq + 6] = xi
+    st[3 * nq + 6:3 * nq + 12] = Tw
+    st[3 * nq + 12:3 * nq + 15] = Tp
     return out_R, out_p, out_T, out_th, out_ph, out_I
 
 
@@ -704,15 +721,55 @@ def _mount(eff: Mapping[str, Mapping[str, float]]) -> np.ndarray:
     return Rt @ Rz
 
 
+N_STATE = 3 * 2 * N_SEG + 6 + 6 + 3  # joints q, dq/dt, creep rest; xi; wire, post temperatures
+STARTS = ("upright", "cooled")
+
+
+def rest_state(rig: Rig) -> np.ndarray:
+    """The plant at rest: upright, still, springs fully martensite at ambient."""
+    st = np.zeros(N_STATE)
+    nq = 2 * N_SEG
+    st[3 * nq:3 * nq + 6] = 1.0
+    st[3 * nq + 6:] = rig.ambient_C
+    return st
+
+
 def simulate_true(rig: Rig, cmd_fine: np.ndarray, eff: Mapping[str, Mapping[str, float]] | None = None,
-                  t0_s: float = 0.0, fatigue_cum: np.ndarray | None = None
+                  t0_s: float = 0.0, fatigue_cum: np.ndarray | None = None,
+                  state: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Plant only: (head rotations, IMU points, wire temperatures, true theta, true phi, the
-    current that flowed per muscle) at IMU_HZ."""
+    current that flowed per muscle) at IMU_HZ. ``state`` (``N_STATE``,): where it starts
+    (default ``rest_state``), updated in place to where it ends."""
     eff = eff or {}
     fc = np.zeros(6) if fatigue_cum is None else fatigue_cum
+    st = rest_state(rig) if state is None else state
+    if st.shape != (N_STATE,) or st.dtype != np.float64:
+        raise ValueError(f"state must be a float64 array of shape ({N_STATE},), got "
+                         f"{st.dtype} {st.shape}")
     return _simulate(np.ascontiguousarray(cmd_fine, float), _pack(rig, eff, t0_s), ATTACH, ANCHORS,
-                     fc, IMU_EVERY)
+                     fc, IMU_EVERY, st)
+
+
+def wait_for_rest(rig: Rig, state: np.ndarray, fatigue_cum: np.ndarray,
+                  eff: Mapping[str, Mapping[str, float]] | None = None, t0_s: float = 0.0) -> float:
+    """The rig protocol's wait between recordings (``neck_env.experiments.REST``), relays off:
+    until every wire is within ``REST.temperature_K`` of ambient (at most ``REST.timeout_s``),
+    then ``REST.stuck_s`` more. ``state`` is updated in place; ``t0_s``: the dataset clock of
+    the recording the wait precedes (a draft on from it blows through the wait too; the clock
+    counts recorded time only, as the draft's onset and the gyro drift are drawn on it);
+    returns the seconds waited."""
+    n = int(round(1.0 / DT_S))
+    off = np.zeros((n, 3))
+    waited = 0.0
+    nq = 2 * N_SEG
+    while (waited < REST.timeout_s
+           and np.max(state[3 * nq + 6:3 * nq + 12]) - rig.ambient_C > REST.temperature_K):
+        simulate_true(rig, off, eff, t0_s, fatigue_cum, state)
+        waited += n * DT_S
+    n = int(round(REST.stuck_s / DT_S))
+    simulate_true(rig, np.zeros((n, 3)), eff, t0_s, fatigue_cum, state)
+    return waited + n * DT_S
 
 
 def calibrated_rig(ambient_C: float = 25.0, cal: Calibrated = CAL) -> Rig:
@@ -903,14 +960,21 @@ def _thermistor(Tw_imu: np.ndarray) -> np.ndarray:
 def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_recordings: int = 15,
              duration_s: float = 30.0, sample_hz: float = 50.0, temperatures: bool | None = None,
              baseline: str = "wide", truth_path=None, *, wire_meta: bool = True,
-             current_sensor: bool = False) -> dict:
+             current_sensor: bool = False, starts: str = "upright") -> dict:
     """Write a synthetic dataset of this rig to ``out_dir`` and its truth beside it; return the truth.
+
+    ``starts``: ``upright`` (every recording from rest upright, as if the neck were reset between
+    recordings) or ``cooled`` (as the rig's protocol records: the plant state carries over
+    through ``wait_for_rest``; friction, or springs left partly austenite at ambient, then hold
+    the neck off upright at the next start).
 
     ``current_sensor``: the recordings also hold ``i1_meas..i3_meas`` (a Hall sensor's reading of
     the current that flowed, from a generator of its own: the other columns are unchanged)."""
     given = _parse_effects(effects)
     if baseline not in ("wide", "default"):
         raise ValueError(f"unknown baseline {baseline!r}; known: wide, default")
+    if starts not in STARTS:
+        raise ValueError(f"unknown starts {starts!r}; known: {STARTS}")
     if not (sample_hz > 0 and math.isfinite(sample_hz)):
         raise ValueError(f"sample_hz must be > 0, got {sample_hz!r}")
     out_dir = Path(out_dir)
@@ -941,15 +1005,21 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
     for old in out_dir.glob("*.csv"):
         old.unlink()
     fatigue = np.zeros(6)
+    state = rest_state(rig)
     t0 = 0.0
     rec_truth = []
-    for rec in recs:
+    for i, rec in enumerate(recs):
         n_s = int(round(rec.duration_s * sample_hz)) + 1
         t = np.arange(n_s) / sample_hz
         n_f = int(round(t[-1] / DT_S)) + 1
         t_f = np.arange(n_f) * DT_S
         cmd_f = rec.currents(t_f - delay) if delay > 0 else rec.currents(t_f)
-        R, p, Tw, th_true, _ph, flowing = simulate_true(rig, cmd_f, eff, t0, fatigue)
+        waited = 0.0
+        if starts == "cooled" and i > 0:
+            waited = wait_for_rest(rig, state, fatigue, eff, t0)
+        else:
+            state = rest_state(rig)
+        R, p, Tw, th_true, ph_true, flowing = simulate_true(rig, cmd_f, eff, t0, fatigue, state)
         n_i = th_true.shape[0]
         acc_n = r_noise.normal(0.0, 0.05, (n_i, 3))
         gyr_n = np.radians(r_noise.normal(0.0, 0.05, (n_i, 3)))
@@ -966,8 +1036,12 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
         if current_sensor:
             cols.update(sensor.columns(flowing[idx], sensor_rng))
         write_recording(out_dir / f"{rec.name}.csv", cols)
+        a0 = math.radians(ph_true[0])
         rec_truth.append({"name": rec.name, "description": rec.description,
-                          "max_theta_true_deg": float(th_true.max())})
+                          "max_theta_true_deg": float(th_true.max()),
+                          "start_true_tilt_deg": [float(th_true[0] * math.cos(a0)),
+                                                  float(th_true[0] * math.sin(a0))],
+                          "waited_s": round(waited, 2)})
         t0 += rec.duration_s
     meta = {"ambient_C": round(ambient_meta, 3), "sample_hz": sample_hz,
             "muscle_azimuth_deg": list(MUSCLE_AZIMUTH_DEG)}
@@ -975,6 +1049,7 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
         meta.update({"spring_wire_diameter_m": WIRE_D_M, "spring_specific_heat_J_kgK": SPECIFIC_HEAT_J_KGK})
     write_meta(out_dir, meta)
     truth = {"generator": GENERATOR, "seed": seed, "protocol": protocol, "sample_hz": sample_hz,
+             "starts": starts,
              "effects": eff, "effect_names": sorted(eff), "catalogued": sorted(CATALOGUE),
              "temperatures": has_T,
              "baseline": {"kind": baseline, **asdict(rig), "ratios": _ratios(rig)},
@@ -1052,6 +1127,9 @@ def main(argv: list[str] | None = None) -> int:
     add_dataset_arguments(ap, list(EFFECTS))
     ap.add_argument("--baseline", choices=("wide", "default"), default="wide")
     ap.add_argument("--calibrate", action="store_true", help="redo the Table 1 fit and print it")
+    ap.add_argument("--starts", choices=STARTS, default="upright",
+                    help="upright: every recording starts upright (the neck reset between "
+                         "recordings); cooled: from where the rig's wait for rest leaves it")
     args = ap.parse_args(argv)
     try:
         if args.calibrate:
@@ -1061,7 +1139,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("OUT_DIR is required (or --calibrate)")
         effects, kw = dataset_arguments(args)
         t = time.perf_counter()
-        truth = generate(args.out_dir, effects, baseline=args.baseline, **kw)
+        truth = generate(args.out_dir, effects, baseline=args.baseline, starts=args.starts, **kw)
     except (ValueError, json.JSONDecodeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
