@@ -144,8 +144,9 @@ initialised from the accelerometer); only fatigue, the gyro drift and a started 
 in file order. With ``starts="cooled"`` the whole plant state carries over instead, through the
 rig protocol's wait for rest (``wait_for_rest``): a backbone with stiction then holds the neck
 where its return stopped (0.5-1 deg at 0.05 N m on wide baselines; the cold pennate springs pull
-it further back than the own model's backbone alone). For one seed the rig, the protocol and the sensor noise do not depend on the
-effects (separate random streams), so two datasets of one seed differ by the effect alone.
+it further back than the own model's backbone alone). For one seed the rig, the protocol and
+the sensor noise do not depend on the effects (separate random streams), so two datasets of one
+seed differ by the effect alone.
 
 Generation takes ~2 s for 15 x 30 s at 50 Hz once numba has compiled the plant (first use on a
 fresh checkout: ~15-40 s, cached afterwards).

@@ -162,8 +162,8 @@ import numpy as np
 from numba import njit
 
 from neck_env.effects import CATALOGUE, EFFECTS
-from neck_env.experiments import (REST, add_dataset_arguments, dataset_arguments, diagnosis_protocol,
-                                  truth_path_for)
+from neck_env.experiments import (REST, add_dataset_arguments, dataset_arguments,
+                                  diagnosis_protocol, truth_path_for)
 from neck_env.recording import write_meta, write_recording
 from neck_env.gap import currents
 
