@@ -45,7 +45,7 @@ import argparse
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -78,6 +78,20 @@ class RestCriterion:
 
 
 REST = RestCriterion()
+
+
+def simulated_wait(advance: Callable[[float], float], hottest_excess_K: Callable[[], float],
+                   chunk_s: float = 1.0, criterion: RestCriterion = REST) -> float:
+    """The rig protocol's wait between recordings, for a simulated plant with its relays off:
+    ``advance(seconds)`` (returns the seconds it simulated) in chunks of ``chunk_s`` until
+    ``hottest_excess_K()`` (the warmest spring over ambient) is within
+    ``criterion.temperature_K`` (at most ``criterion.timeout_s``), then ``criterion.stuck_s``
+    more -- the longest the rig waits before it records from a neck held where it stopped.
+    Returns the seconds waited. The generators' ``starts="cooled"`` share it."""
+    waited = 0.0
+    while waited < criterion.timeout_s and hottest_excess_K() > criterion.temperature_K:
+        waited += advance(chunk_s)
+    return waited + advance(criterion.stuck_s)
 
 
 @dataclass(frozen=True)

@@ -193,8 +193,8 @@ import numpy as np
 from numba import njit
 
 from neck_env.effects import CATALOGUE, EFFECTS
-from neck_env.experiments import (PROTOCOLS, REST, add_dataset_arguments, dataset_arguments,
-                                  diagnosis_protocol, truth_path_for)
+from neck_env.experiments import (PROTOCOLS, add_dataset_arguments, dataset_arguments,
+                                  diagnosis_protocol, simulated_wait, truth_path_for)
 from neck_env.recording import write_meta, write_recording
 from neck_env.gap import currents
 
@@ -706,19 +706,17 @@ def simulate_recording(p: RigParams, currents_A: np.ndarray, sample_hz: float = 
 def wait_for_rest(p: RigParams, state: np.ndarray, fatigue_state: np.ndarray,
                   effects: Mapping[str, Mapping[str, float]] | None = None,
                   h_multiplier: float = 1.0, sample_hz: float = 50.0) -> float:
-    """The rig protocol's wait between recordings (``neck_env.experiments.REST``), relays off:
-    until every spring is within ``REST.temperature_K`` of ambient (at most ``REST.timeout_s``),
-    then ``REST.stuck_s`` more, the longest the rig waits before it records from a neck held
-    where it stopped. ``state`` is updated in place; returns the seconds waited."""
-    n = int(round(sample_hz)) + 1  # 1 s chunks: the springs' temperatures checked each second
-    off = np.zeros((n, 3))
-    waited = 0.0
-    while waited < REST.timeout_s and np.max(state[0:6]) - p.ambient_C > REST.temperature_K:
-        simulate_recording(p, off, sample_hz, effects, h_multiplier, fatigue_state, state)
-        waited += n / sample_hz
-    n = int(round(REST.stuck_s * sample_hz))
-    simulate_recording(p, np.zeros((n, 3)), sample_hz, effects, h_multiplier, fatigue_state, state)
-    return waited + n / sample_hz
+    """The rig protocol's wait between recordings (``experiments.simulated_wait``), relays off;
+    ``state`` is updated in place; returns the seconds waited."""
+    def advance(seconds: float) -> float:
+        n = int(round(seconds * sample_hz))
+        simulate_recording(p, np.zeros((n, 3)), sample_hz, effects, h_multiplier,
+                           fatigue_state, state)
+        return n / sample_hz
+
+    # chunks of 1 s and one sample, as since this generator was written (its datasets stay)
+    return simulated_wait(advance, lambda: float(np.max(state[0:6])) - p.ambient_C,
+                          (int(round(sample_hz)) + 1) / sample_hz)
 
 
 # -- calibration --------------------------------------------------------------------------------

@@ -55,8 +55,8 @@ from ..params import NeckParams, default_params
 from ..physics import layout as L
 from ..physics.plant import (constants_from_params, cooling_time_constant_s, initial_state,
                              step_inplace)
-from ..experiments import (REST, add_dataset_arguments, dataset_arguments, protocol_schedule,
-                           truth_path_for)
+from ..experiments import (add_dataset_arguments, dataset_arguments, protocol_schedule,
+                           simulated_wait, truth_path_for)
 from ..recording import write_meta, write_recording
 from . import currents
 from ..sensors import SensorParams, imu_tilt_series
@@ -188,20 +188,19 @@ STARTS = ("upright", "cooled")
 
 
 def _cooled(consts: np.ndarray, x: np.ndarray, dt: float) -> np.ndarray:
-    """The state after the rig's wait for rest from ``x``: relays off until every spring is
-    within ``REST.temperature_K`` of ambient (at most ``REST.timeout_s``), then ``REST.stuck_s``
-    more (what the rig waits before it takes a neck off its rest reading as held there)."""
+    """The state after the rig protocol's wait for rest from ``x`` (``simulated_wait``)."""
     x = x.copy()
     left = np.full(1, np.inf)
     o = np.empty((1, L.N_OUT))
     off = np.zeros((1, 3))
     amb = consts[0, L.AMBIENT]
-    chunk = max(1, int(round(1.0 / dt)))
-    waited = 0.0
-    while waited < REST.timeout_s and np.max(x[0, L.S_T:L.S_T + 3] - amb) > REST.temperature_K:
-        step_inplace(consts, x, off, dt, chunk, left, o)
-        waited += chunk * dt
-    step_inplace(consts, x, off, dt, max(1, int(round(REST.stuck_s / dt))), left, o)
+
+    def advance(seconds: float) -> float:
+        n = max(1, int(round(seconds / dt)))
+        step_inplace(consts, x, off, dt, n, left, o)
+        return n * dt
+
+    simulated_wait(advance, lambda: float(np.max(x[0, L.S_T:L.S_T + 3] - amb)))
     return x
 
 

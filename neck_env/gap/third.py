@@ -162,8 +162,8 @@ import numpy as np
 from numba import njit
 
 from neck_env.effects import CATALOGUE, EFFECTS
-from neck_env.experiments import (REST, add_dataset_arguments, dataset_arguments,
-                                  diagnosis_protocol, truth_path_for)
+from neck_env.experiments import (add_dataset_arguments, dataset_arguments, diagnosis_protocol,
+                                  simulated_wait, truth_path_for)
 from neck_env.recording import write_meta, write_recording
 from neck_env.gap import currents
 
@@ -753,23 +753,20 @@ def simulate_true(rig: Rig, cmd_fine: np.ndarray, eff: Mapping[str, Mapping[str,
 
 def wait_for_rest(rig: Rig, state: np.ndarray, fatigue_cum: np.ndarray,
                   eff: Mapping[str, Mapping[str, float]] | None = None, t0_s: float = 0.0) -> float:
-    """The rig protocol's wait between recordings (``neck_env.experiments.REST``), relays off:
-    until every wire is within ``REST.temperature_K`` of ambient (at most ``REST.timeout_s``),
-    then ``REST.stuck_s`` more. ``state`` is updated in place; ``t0_s``: the dataset clock of
-    the recording the wait precedes (a draft on from it blows through the wait too; the clock
-    counts recorded time only, as the draft's onset and the gyro drift are drawn on it);
-    returns the seconds waited."""
-    n = int(round(1.0 / DT_S))
-    off = np.zeros((n, 3))
-    waited = 0.0
+    """The rig protocol's wait between recordings (``experiments.simulated_wait``), relays off.
+    ``state`` is updated in place; ``t0_s``: the dataset clock of the recording the wait
+    precedes (a draft on from it blows through the wait too; the clock counts recorded time
+    only, as the draft's onset and the gyro drift are drawn on it); returns the seconds
+    waited."""
     nq = 2 * N_SEG
-    while (waited < REST.timeout_s
-           and np.max(state[3 * nq + 6:3 * nq + 12]) - rig.ambient_C > REST.temperature_K):
-        simulate_true(rig, off, eff, t0_s, fatigue_cum, state)
-        waited += n * DT_S
-    n = int(round(REST.stuck_s / DT_S))
-    simulate_true(rig, np.zeros((n, 3)), eff, t0_s, fatigue_cum, state)
-    return waited + n * DT_S
+
+    def advance(seconds: float) -> float:
+        n = int(round(seconds / DT_S))
+        simulate_true(rig, np.zeros((n, 3)), eff, t0_s, fatigue_cum, state)
+        return n * DT_S
+
+    return simulated_wait(advance, lambda: float(np.max(state[3 * nq + 6:3 * nq + 12]))
+                          - rig.ambient_C)
 
 
 def calibrated_rig(ambient_C: float = 25.0, cal: Calibrated = CAL) -> Rig:
