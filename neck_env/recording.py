@@ -45,6 +45,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 REQUIRED_COLUMNS = ("t", "i1", "i2", "i3", "theta_deg", "phi_deg")
+IMU_COLUMNS = ("theta_deg", "phi_deg")
 TEMPERATURE_COLUMNS = ("T1", "T2", "T3")
 META_KEYS = ("ambient_C", "sample_hz", "muscle_azimuth_deg", "spring_wire_diameter_m",
              "spring_specific_heat_J_kgK")
@@ -78,6 +79,8 @@ class Recording:
     extra: dict[str, np.ndarray] = field(default_factory=dict)  # other columns, as floats or str
     name: str = ""
     path: Path | None = None
+    # (n,) True where theta/phi were missing in the file and interpolated (``imu_gap_max_s``)
+    imu_filled: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -166,8 +169,14 @@ def _parse_float(text: str, path: Path, line: int, column: str, missing_ok: bool
     return v
 
 
-def read_recording(path: str | Path) -> Recording:
-    """Read and validate one recording CSV (see the module docstring for the format)."""
+def read_recording(path: str | Path, imu_gap_max_s: float = 0.0) -> Recording:
+    """Read and validate one recording CSV (see the module docstring for the format).
+
+    ``imu_gap_max_s`` > 0: an empty or ``nan`` ``theta_deg``/``phi_deg`` cell is an IMU reading
+    that did not arrive (a failed I2C read), filled from its neighbours when the gap between
+    the readings around it lasts at most that long (``fill_imu_gaps``); a longer gap, or one at
+    the start or end of the recording, is still an error. 0 (the default): every cell must
+    hold a finite number."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -210,11 +219,13 @@ def read_recording(path: str | Path) -> Recording:
     values = np.empty((len(rows), len(numeric)))
     extra_raw: dict[str, list[str]] = {c: [] for c in extra_names}
     n_req = len(REQUIRED_COLUMNS)
+    imu_missing_ok = imu_gap_max_s > 0
     for r, (ln, row) in enumerate(rows):
         if len(row) != len(header):
             raise RecordingError(path, f"{len(row)} fields, the header has {len(header)}", ln)
         for j, c in enumerate(numeric):
-            values[r, j] = _parse_float(row[idx[c]], path, ln, c, missing_ok=j >= n_req)
+            values[r, j] = _parse_float(row[idx[c]], path, ln, c,
+                                        missing_ok=j >= n_req or (imu_missing_ok and c in IMU_COLUMNS))
         for c in extra_names:
             extra_raw[c].append(row[idx[c]].strip())
     t = values[:, 0]
@@ -236,6 +247,10 @@ def read_recording(path: str | Path) -> Recording:
     if neg.size:
         raise RecordingError(path, f"theta_deg = {theta[neg[0]]:g} is negative", rows[neg[0]][0])
     phi = np.mod(values[:, 5], 360.0)
+    filled = None
+    if imu_missing_ok:
+        theta, phi, filled = fill_imu_gaps(t, theta, phi, imu_gap_max_s, path,
+                                           [ln for ln, _ in rows])
     temps = None
     if t_cols:
         temps = np.full((len(rows), 3), math.nan)
@@ -248,7 +263,52 @@ def read_recording(path: str | Path) -> Recording:
         except ValueError:
             extra[c] = np.array(vals, dtype=object)
     return Recording(t=t, currents_A=cur, theta_deg=theta, phi_deg=phi, temperatures_C=temps,
-                     extra=extra, name=path.stem, path=path)
+                     extra=extra, name=path.stem, path=path, imu_filled=filled)
+
+
+def fill_imu_gaps(t: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray, max_gap_s: float,
+                  path: str | Path = "", lines: Sequence[int] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Missing (NaN) IMU readings filled from the readings around them.
+
+    A row misses its reading when ``theta_deg`` or ``phi_deg`` is NaN. Each run of such rows is
+    filled by interpolating the tilt vector (theta cos phi, theta sin phi) linearly in ``t``
+    between the complete rows on either side -- the vector, not the angles, because phi wraps
+    at 360 and is ill-defined near theta = 0 -- when those two rows are at most ``max_gap_s``
+    apart: the neck moves a few degrees per second at most, so a dropout of a fraction of a
+    second is a straight line well inside the sensor's noise. Where only phi is missing,
+    theta is kept as read. A longer run, or one with no complete row before or after it, is a
+    ``RecordingError`` naming its lines (``lines``: the file line of each row).
+
+    Returns theta, phi (new arrays) and the (n,) mask of filled rows (None: nothing missing)."""
+    gone = ~(np.isfinite(theta_deg) & np.isfinite(phi_deg))
+    if not gone.any():
+        return theta_deg, phi_deg, None
+    lines = list(lines) if lines is not None else list(range(2, t.size + 2))
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], gone.astype(np.int8), [0]])))
+    theta, phi = theta_deg.copy(), phi_deg.copy()
+    ok = ~gone
+    for a, b in zip(edges[::2], edges[1::2]):  # rows a..b-1 are missing
+        where = (f"{'line ' + str(lines[a]) if b - a == 1 else f'lines {lines[a]}-{lines[b - 1]}'}"
+                 f" ({b - a} row{'s' if b - a > 1 else ''})")
+        if a == 0 or b == t.size:
+            raise RecordingError(path, f"theta_deg/phi_deg missing on {where} at the "
+                                       f"{'start' if a == 0 else 'end'} of the recording: no "
+                                       f"reading on that side to fill them from", lines[a])
+        span = float(t[b] - t[a - 1])
+        if span > max_gap_s:
+            raise RecordingError(path, f"theta_deg/phi_deg missing on {where}: the readings "
+                                       f"around them are {span:.3g} s apart, more than the "
+                                       f"{max_gap_s:g} s a dropout may be filled over", lines[a])
+    x = np.where(ok, theta_deg * np.cos(np.radians(phi_deg)), 0.0)
+    y = np.where(ok, theta_deg * np.sin(np.radians(phi_deg)), 0.0)
+    xi = np.interp(t[gone], t[ok], x[ok])
+    yi = np.interp(t[gone], t[ok], y[ok])
+    keep_theta = np.isfinite(theta_deg[gone])
+    theta[gone] = np.where(keep_theta, theta_deg[gone], np.hypot(xi, yi))
+    p = np.mod(np.degrees(np.arctan2(yi, xi)), 360.0)
+    phi[gone] = np.where(p >= 360.0, 0.0, p)  # mod of a tiny negative angle rounds to 360
+    return theta, phi, gone
 
 
 def _natural_key(p: Path):
@@ -353,8 +413,9 @@ def read_meta(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def read_dataset(directory: str | Path) -> Dataset:
-    """Read every ``*.csv`` of a folder in natural name order, and its optional ``meta.json``."""
+def read_dataset(directory: str | Path, imu_gap_max_s: float = 0.0) -> Dataset:
+    """Read every ``*.csv`` of a folder in natural name order, and its optional ``meta.json``
+    (``imu_gap_max_s``: ``read_recording``)."""
     directory = Path(directory)
     if not directory.exists():
         raise RecordingError(directory, "no such dataset folder")
@@ -366,7 +427,7 @@ def read_dataset(directory: str | Path) -> Dataset:
         raise RecordingError(directory, "no *.csv recordings in this folder")
     meta_path = directory / META_FILE
     meta = read_meta(meta_path) if meta_path.exists() else {}
-    return Dataset([read_recording(f) for f in files], meta, directory)
+    return Dataset([read_recording(f, imu_gap_max_s) for f in files], meta, directory)
 
 
 # -- writing ------------------------------------------------------------------------------------

@@ -300,6 +300,25 @@ BLIND = [
 ]
 
 
+def _drop_imu_readings(path: Path) -> bool:
+    """Blank the IMU cells of a few rows, as a logger does when an I2C read fails: single
+    rows (theta and phi, or phi alone) and a run of four (0.1 s between the readings around
+    it at 50 Hz). With a 0.05 s limit the run is refused before any fitting."""
+    lines = path.read_text().splitlines()
+    head = lines[0].split(",")
+    th, ph = head.index("theta_deg"), head.index("phi_deg")
+    for row, cols in ((100, (th, ph)), (400, (ph,)), (700, (th,)), *((k, (th, ph)) for k in range(1000, 1004))):
+        cells = lines[row].split(",")
+        for c in cols:
+            cells[c] = "" if c == th else "nan"
+        lines[row] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    bad = path.parent.parent / "refused.json"
+    assert gap_main([str(path.parent), "--json", str(bad), "--quiet", "--imu-gap-max-s", "0.05"]) == 2
+    assert not bad.exists()
+    return True
+
+
 @pytest.mark.parametrize("effects, seed, baseline", BLIND,
                          ids=[f"{e[0] if e else 'none'}-{b}" for e, _, b in BLIND])
 def test_blind_small(tmp_path, effects, seed, baseline):
@@ -313,8 +332,12 @@ def test_blind_small(tmp_path, effects, seed, baseline):
         assert gap_main([str(ds), "--json", str(tmp_path / "bad.json"), "--quiet",
                          "--wire-diameter-mm", "0.0008", "--wire-specific-heat", "837"]) == 2
         assert not (tmp_path / "bad.json").exists()
+    dropped = effects == ["actuation_delay"] and _drop_imu_readings(ds / "rec_03.csv")
     rep = _diagnose(ds, tmp_path, extra=wire)
     _check_contract(rep)
+    # IMU readings that did not arrive are filled, said, and the verdict does not need them
+    assert rep["imu_gaps_filled"] == ([{"recording": "rec_03", "samples": 7,
+                                        "longest_gap_s": pytest.approx(0.1)}] if dropped else [])
     if not effects:
         assert rep["verdict"] == [] and rep["unexplained"] is False
         # the baseline is recovered: h from the cooling tails and the wire meta.json gives

@@ -67,6 +67,43 @@ def test_bad_recordings_name_file_and_line(tmp_path, text, fragment, line):
         assert f"line {line}" in msg
 
 
+def test_missing_imu_readings_filled_over_short_gaps(tmp_path):
+    # the tilt vector is interpolated: phi crosses 0/360 the short way, theta is the vector's
+    text = ("t,i1,i2,i3,theta_deg,phi_deg\n"
+            "0.00,0,0,0,2.0,350\n"
+            "0.02,0,0,0,,\n"
+            "0.04,0,0,0,2.0,10\n"
+            "0.06,0,0,0,3.0,nan\n"
+            "0.08,0,0,0,3.0,90\n")
+    p = _write(tmp_path / "rec_01.csv", text)
+    with pytest.raises(RecordingError, match="line 3.*empty"):
+        read_recording(p)  # strict by default: the format requires every reading
+    rec = read_recording(p, imu_gap_max_s=0.05)
+    np.testing.assert_array_equal(rec.imu_filled, [False, True, False, True, False])
+    assert rec.phi_deg[1] == pytest.approx(0.0, abs=1e-9)
+    assert rec.theta_deg[1] == pytest.approx(2.0 * np.cos(np.radians(10.0)))
+    assert rec.theta_deg[3] == 3.0  # read: only phi was missing
+    v = (np.array([2 * np.cos(np.radians(10)), 2 * np.sin(np.radians(10))]) + [0.0, 3.0]) / 2
+    assert rec.phi_deg[3] == pytest.approx(np.degrees(np.arctan2(v[1], v[0])))
+    assert read_dataset(tmp_path, imu_gap_max_s=0.05).recordings[0].imu_filled.sum() == 2
+    assert read_recording(_write(tmp_path / "b.csv", GOOD), imu_gap_max_s=0.5).imu_filled is None
+
+
+@pytest.mark.parametrize("text, fragment, line", [
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,,\n0.2,0,0,0,,\n0.3,0,0,0,1,0\n",
+     "lines 3-4 (2 rows): the readings around them are 0.3 s apart", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,nan,0\n0.1,0,0,0,1,0\n", "start of the recording", 2),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,1,\n", "end of the recording", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,inf,0\n", "finite", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,one,0\n", "not a number", 3),
+])
+def test_missing_imu_readings_refused_where_they_cannot_be_filled(tmp_path, text, fragment, line):
+    with pytest.raises(RecordingError) as exc:
+        read_recording(_write(tmp_path / "rec_02.csv", text), imu_gap_max_s=0.25)
+    assert "rec_02.csv" in str(exc.value) and fragment in str(exc.value), str(exc.value)
+    assert exc.value.line == line
+
+
 def test_dataset_natural_order_and_meta(tmp_path):
     for name in ("rec_10.csv", "rec_2.csv", "rec_1.csv"):
         _write(tmp_path / name, GOOD)

@@ -13,8 +13,28 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from ..recording import (RecordingError, add_wire_arguments, read_dataset,
+import numpy as np
+
+from ..recording import (Dataset, RecordingError, add_wire_arguments, read_dataset,
                          wire_from_arguments)
+
+# A failed I2C read leaves a row without its IMU reading; over half a second the neck (a few
+# deg/s at most) moves along a line well inside the sensor's noise, so such gaps are filled.
+IMU_GAP_MAX_S = 0.5
+
+
+def imu_gaps_filled(ds: Dataset) -> list[dict]:
+    """Per recording with filled IMU readings (``Recording.imu_filled``): how many, and the
+    longest gap between the readings around a run of them, s."""
+    out = []
+    for r in ds.recordings:
+        m = r.imu_filled
+        if m is None or not m.any():
+            continue
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], m.astype(np.int8), [0]])))
+        longest = max(float(r.t[b] - r.t[a - 1]) for a, b in zip(edges[::2], edges[1::2]))
+        out.append({"recording": r.name, "samples": int(m.sum()), "longest_gap_s": longest})
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -38,8 +58,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "posts: a second, slower thermal mass) as part of the rig's baseline: "
                          "for springs crimped to metal, when h must be the air's alone "
                          "(docs/gap.md, 'Heat drained into the terminals')")
+    ap.add_argument("--imu-gap-max-s", type=float, default=IMU_GAP_MAX_S, metavar="S",
+                    help="fill missing theta_deg/phi_deg readings (empty or nan cells: a failed "
+                         "IMU read) from their neighbours over gaps of at most S seconds; "
+                         "longer ones are an error; 0 refuses any (default %(default)g; "
+                         "the report's \"imu_gaps_filled\" lists them)")
     add_wire_arguments(ap)
     args = ap.parse_args(argv)
+    if not args.imu_gap_max_s >= 0:  # also NaN
+        print(f"neck-gap: bad input: --imu-gap-max-s {args.imu_gap_max_s} must be >= 0 s",
+              file=sys.stderr)
+        return 2
     try:
         wire = wire_from_arguments(args)
     except ValueError as exc:
@@ -48,10 +77,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
     try:
-        ds = read_dataset(args.dataset)
+        ds = read_dataset(args.dataset, imu_gap_max_s=args.imu_gap_max_s)
     except RecordingError as exc:
         print(f"neck-gap: bad input: {exc}", file=sys.stderr)
         return 2
+    filled = imu_gaps_filled(ds)
+    for f in filled:
+        print(f"neck-gap: warning: {f['recording']}: {f['samples']} missing IMU reading(s) "
+              f"filled from their neighbours (longest gap {f['longest_gap_s']:.3g} s)",
+              file=sys.stderr)
     ds.meta.update(wire)  # the command line over meta.json; the folder is not written
     from .diagnose import diagnose
     from .report import text_report, write_outputs
@@ -71,7 +105,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         dg = diagnose(without(ds, [b["recording"] for b in bent]), log=log,
                       spring_modulus=args.fit_spring_modulus, terminals=args.fit_terminals)
         rep = write_outputs(dg, args.json, dataset_path=Path(args.dataset),
-                            make_plots=not args.no_plots, extra={"not_at_rest": bent})
+                            make_plots=not args.no_plots, extra={"not_at_rest": bent,
+                                                             "imu_gaps_filled": filled})
     except RecordingError as exc:
         print(f"neck-gap: bad input: {exc}", file=sys.stderr)
         return 2
