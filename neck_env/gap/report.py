@@ -172,6 +172,8 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "significant": bool(named_on),
             "grounds": list(named_on),
             "significant_vs_nominal": bool(D.significant_any(s)),
+            # a fit too small to name whatever the tests say (``diagnose.unresolved``)
+            "unresolved": s.unresolved,
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
             # fitted on top of that structural discrepancy, where the plain comparison failed
@@ -211,6 +213,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "fitting_gap_switched_off": (_r(s.vs_off.gap_before_deg)
                                          if s.vs_off is not None else None),
             "significant": bool(s.accepted),
+            "unresolved": s.unresolved,
             **_warming(s),
         })
     loc = [{"signal": it["signal"], "phase": it["phase"], "muscle": it["muscle"],
@@ -417,6 +420,8 @@ def text_report(rep: dict) -> str:
                  f"{e['heldout_gap_after']:.3f} deg ({100 * e['heldout_reduction']:+5.1f} %, t {e['heldout_t']:.1f})  {ps}")
         if e.get("grounds"):
             L.append(f"    {'':25s} named on: {', '.join(e['grounds'])}")
+        if e.get("unresolved") and e.get("significant_vs_nominal"):
+            L.append(f"    {'':25s} not named: {e['unresolved']}")
         b = e.get("heldout_built_up")
         if b:
             L.append(f"    {'':25s} where it has built up ({', '.join(b['recordings'])}): "
