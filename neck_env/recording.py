@@ -21,7 +21,9 @@ A **dataset** is a folder of recordings (``*.csv``), in time order by file name 
 (the synthetic generator writes its ground truth *outside* the folder).
 
 Every reading error is a :class:`RecordingError` (a ``ValueError``) whose message names the
-file and, where it applies, the line (the header is line 1).
+file and, where it applies, the line (the header is line 1). A reader asked to
+(``imu_gap_max_s``) fills short runs of missing ``theta_deg``/``phi_deg`` readings instead
+(``fill_imu_gaps``).
 
 :class:`RecordingWriter` appends rows and flushes them to the operating system at least once a
 second (of wall time or of recorded time), so a crash loses at most the last second; the
@@ -174,9 +176,9 @@ def read_recording(path: str | Path, imu_gap_max_s: float = 0.0) -> Recording:
 
     ``imu_gap_max_s`` > 0: an empty or ``nan`` ``theta_deg``/``phi_deg`` cell is an IMU reading
     that did not arrive (a failed I2C read), filled from its neighbours when the gap between
-    the readings around it lasts at most that long (``fill_imu_gaps``); a longer gap, or one at
-    the start or end of the recording, is still an error. 0 (the default): every cell must
-    hold a finite number."""
+    the readings around it lasts at most that long (``fill_imu_gaps``; at an end of the
+    recording, the nearest reading is held as long); a longer gap is still an error. 0 (the
+    default): every cell must hold a finite number."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -266,6 +268,19 @@ def read_recording(path: str | Path, imu_gap_max_s: float = 0.0) -> Recording:
                      extra=extra, name=path.stem, path=path, imu_filled=filled)
 
 
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of True in a boolean array, as (first, one past the last) index pairs."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(mask, np.int8), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def gap_span_s(t: np.ndarray, a: int, b: int) -> float:
+    """How long rows a..b-1 go without a reading: from the reading before them to the one
+    after, or at an end of the recording from its first or last row to the nearest reading
+    (which is held there: the neck is at rest or moving slowly)."""
+    return float(t[min(b, t.size - 1)] - t[max(a - 1, 0)])
+
+
 def fill_imu_gaps(t: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray, max_gap_s: float,
                   path: str | Path = "", lines: Sequence[int] | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -276,8 +291,9 @@ def fill_imu_gaps(t: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray, max
     between the complete rows on either side -- the vector, not the angles, because phi wraps
     at 360 and is ill-defined near theta = 0 -- when those two rows are at most ``max_gap_s``
     apart: the neck moves a few degrees per second at most, so a dropout of a fraction of a
-    second is a straight line well inside the sensor's noise. Where only phi is missing,
-    theta is kept as read. A longer run, or one with no complete row before or after it, is a
+    second is a straight line well inside the sensor's noise. At either end of the recording
+    the nearest reading is held, over no longer than ``max_gap_s`` either. Where only phi is
+    missing, theta is kept as read. A longer run, or a recording with no reading at all, is a
     ``RecordingError`` naming its lines (``lines``: the file line of each row).
 
     Returns theta, phi (new arrays) and the (n,) mask of filled rows (None: nothing missing)."""
@@ -285,21 +301,22 @@ def fill_imu_gaps(t: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray, max
     if not gone.any():
         return theta_deg, phi_deg, None
     lines = list(lines) if lines is not None else list(range(2, t.size + 2))
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], gone.astype(np.int8), [0]])))
     theta, phi = theta_deg.copy(), phi_deg.copy()
     ok = ~gone
-    for a, b in zip(edges[::2], edges[1::2]):  # rows a..b-1 are missing
+    for a, b in runs(gone):  # rows a..b-1 are missing
         where = (f"{'line ' + str(lines[a]) if b - a == 1 else f'lines {lines[a]}-{lines[b - 1]}'}"
                  f" ({b - a} row{'s' if b - a > 1 else ''})")
-        if a == 0 or b == t.size:
-            raise RecordingError(path, f"theta_deg/phi_deg missing on {where} at the "
-                                       f"{'start' if a == 0 else 'end'} of the recording: no "
-                                       f"reading on that side to fill them from", lines[a])
-        span = float(t[b] - t[a - 1])
+        if a == 0 and b == t.size:
+            raise RecordingError(path, "theta_deg/phi_deg missing on every row: no IMU reading "
+                                       "to fill them from")
+        span = gap_span_s(t, a, b)
         if span > max_gap_s:
-            raise RecordingError(path, f"theta_deg/phi_deg missing on {where}: the readings "
-                                       f"around them are {span:.3g} s apart, more than the "
-                                       f"{max_gap_s:g} s a dropout may be filled over", lines[a])
+            side = (f" at the start of the recording: the first reading is {span:.3g} s away"
+                    if a == 0 else
+                    f" at the end of the recording: the last reading is {span:.3g} s away"
+                    if b == t.size else f": the readings around them are {span:.3g} s apart")
+            raise RecordingError(path, f"theta_deg/phi_deg missing on {where}{side}, more than "
+                                       f"the {max_gap_s:g} s a dropout may be filled over", lines[a])
     x = np.where(ok, theta_deg * np.cos(np.radians(phi_deg)), 0.0)
     y = np.where(ok, theta_deg * np.sin(np.radians(phi_deg)), 0.0)
     xi = np.interp(t[gone], t[ok], x[ok])

@@ -87,13 +87,27 @@ def test_missing_imu_readings_filled_over_short_gaps(tmp_path):
     assert rec.phi_deg[3] == pytest.approx(np.degrees(np.arctan2(v[1], v[0])))
     assert read_dataset(tmp_path, imu_gap_max_s=0.05).recordings[0].imu_filled.sum() == 2
     assert read_recording(_write(tmp_path / "b.csv", GOOD), imu_gap_max_s=0.5).imu_filled is None
+    # at the ends the nearest reading is held
+    ends = read_recording(_write(tmp_path / "c.csv", "t,i1,i2,i3,theta_deg,phi_deg\n"
+                                 "0,0,0,0,,\n0.1,0,0,0,1.5,30\n0.2,0,0,0,2,40\n0.3,0,0,0,nan,\n"),
+                          imu_gap_max_s=0.25)
+    np.testing.assert_allclose(ends.theta_deg, [1.5, 1.5, 2.0, 2.0])
+    np.testing.assert_allclose(ends.phi_deg, [30, 30, 40, 40])
+    from neck_env.gap.cli import imu_gaps_filled  # what neck-gap reports of them
+    from neck_env.recording import Dataset
+    assert imu_gaps_filled(Dataset([rec, ends])) == [
+        {"recording": "rec_01", "samples": 2, "longest_gap_s": pytest.approx(0.04)},
+        {"recording": "c", "samples": 2, "longest_gap_s": pytest.approx(0.1)}]
 
 
 @pytest.mark.parametrize("text, fragment, line", [
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,,\n0.2,0,0,0,,\n0.3,0,0,0,1,0\n",
      "lines 3-4 (2 rows): the readings around them are 0.3 s apart", 3),
-    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,nan,0\n0.1,0,0,0,1,0\n", "start of the recording", 2),
-    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,1,\n", "end of the recording", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,nan,0\n0.1,0,0,0,nan,0\n0.3,0,0,0,1,0\n",
+     "lines 2-3 (2 rows) at the start of the recording: the first reading is 0.3 s away", 2),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,1,0\n0.4,0,0,0,,\n",
+     "line 4 (1 row) at the end of the recording: the last reading is 0.3 s away", 4),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,,0\n0.1,0,0,0,1,\n", "missing on every row", None),
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,inf,0\n", "finite", 3),
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,1,0\n0.1,0,0,0,one,0\n", "not a number", 3),
 ])
@@ -102,6 +116,8 @@ def test_missing_imu_readings_refused_where_they_cannot_be_filled(tmp_path, text
         read_recording(_write(tmp_path / "rec_02.csv", text), imu_gap_max_s=0.25)
     assert "rec_02.csv" in str(exc.value) and fragment in str(exc.value), str(exc.value)
     assert exc.value.line == line
+    if line is not None:
+        assert f"line {line}" in str(exc.value) or f"lines {line}-" in str(exc.value)
 
 
 def test_dataset_natural_order_and_meta(tmp_path):

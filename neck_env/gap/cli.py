@@ -13,10 +13,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
-
-from ..recording import (Dataset, RecordingError, add_wire_arguments, read_dataset,
-                         wire_from_arguments)
+from ..recording import (Dataset, RecordingError, add_wire_arguments, gap_span_s, read_dataset,
+                         runs, wire_from_arguments)
 
 # A failed I2C read leaves a row without its IMU reading; over half a second the neck (a few
 # deg/s at most) moves along a line well inside the sensor's noise, so such gaps are filled.
@@ -31,8 +29,7 @@ def imu_gaps_filled(ds: Dataset) -> list[dict]:
         m = r.imu_filled
         if m is None or not m.any():
             continue
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], m.astype(np.int8), [0]])))
-        longest = max(float(r.t[b] - r.t[a - 1]) for a, b in zip(edges[::2], edges[1::2]))
+        longest = max(gap_span_s(r.t, a, b) for a, b in runs(m))
         out.append({"recording": r.name, "samples": int(m.sum()), "longest_gap_s": longest})
     return out
 
