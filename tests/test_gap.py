@@ -450,7 +450,11 @@ GOOD = "t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.02,5,0,0,0.1,180\n0.04,5,0,
     ({"rec_01.csv": GOOD, "rec_02.csv": "t,i1,i2,theta_deg,phi_deg\n0,0,0,0,0\n"},
      "rec_02.csv, line 1: missing required column(s) i3"),
     ({"rec_01.csv": GOOD.replace("0.04,", "0.02,")}, "rec_01.csv, line 4"),
-    ({"rec_01.csv": GOOD.replace("0.1,180", "nan,180")}, "rec_01.csv, line 3"),
+    # a missing IMU reading is filled over 0.5 s at most: over 0.98 s it is bad input
+    ({"rec_01.csv": GOOD.replace("0.1,180", "nan,180").replace("0.04,", "1.0,")},
+     "rec_01.csv, line 3: theta_deg/phi_deg missing on line 3 (1 row): the readings around them "
+     "are 1 s apart"),
+    ({"rec_01.csv": GOOD.replace("0.1,180", "inf,180")}, "rec_01.csv, line 3"),
     ({"rec_01.csv": GOOD, "rec_02.csv": ""}, "rec_02.csv"),
 ])
 def test_bad_input_names_file_and_line_and_writes_nothing(tmp_path, capsys, files, fragment):
