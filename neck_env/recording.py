@@ -222,12 +222,13 @@ def read_recording(path: str | Path, imu_gap_max_s: float = 0.0) -> Recording:
     extra_raw: dict[str, list[str]] = {c: [] for c in extra_names}
     n_req = len(REQUIRED_COLUMNS)
     imu_missing_ok = imu_gap_max_s > 0
+    # per column, once: which may hold a missing reading
+    missing_ok = [j >= n_req or (imu_missing_ok and c in IMU_COLUMNS) for j, c in enumerate(numeric)]
     for r, (ln, row) in enumerate(rows):
         if len(row) != len(header):
             raise RecordingError(path, f"{len(row)} fields, the header has {len(header)}", ln)
         for j, c in enumerate(numeric):
-            values[r, j] = _parse_float(row[idx[c]], path, ln, c,
-                                        missing_ok=j >= n_req or (imu_missing_ok and c in IMU_COLUMNS))
+            values[r, j] = _parse_float(row[idx[c]], path, ln, c, missing_ok=missing_ok[j])
         for c in extra_names:
             extra_raw[c].append(row[idx[c]].strip())
     t = values[:, 0]
@@ -317,10 +318,9 @@ def fill_imu_gaps(t: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray, max
                     if b == t.size else f": the readings around them are {span:.3g} s apart")
             raise RecordingError(path, f"theta_deg/phi_deg missing on {where}{side}, more than "
                                        f"the {max_gap_s:g} s a dropout may be filled over", lines[a])
-    x = np.where(ok, theta_deg * np.cos(np.radians(phi_deg)), 0.0)
-    y = np.where(ok, theta_deg * np.sin(np.radians(phi_deg)), 0.0)
-    xi = np.interp(t[gone], t[ok], x[ok])
-    yi = np.interp(t[gone], t[ok], y[ok])
+    th, ph = theta_deg[ok], np.radians(phi_deg[ok])
+    xi = np.interp(t[gone], t[ok], th * np.cos(ph))
+    yi = np.interp(t[gone], t[ok], th * np.sin(ph))
     keep_theta = np.isfinite(theta_deg[gone])
     theta[gone] = np.where(keep_theta, theta_deg[gone], np.hypot(xi, yi))
     p = np.mod(np.degrees(np.arctan2(yi, xi)), 360.0)

@@ -545,8 +545,10 @@ def h_change(model: Model, c: Candidate) -> float:
 def unresolved(model: Model, c: Candidate) -> str:
     """Why the catalogued effects of ``c``'s fit are too small to name, whatever the held-out
     tests say (empty: they are not): a convection change under ``MIN_H_CHANGE``."""
+    if "convection_change" not in c.effects:
+        return ""
     dh = h_change(model, c)
-    if "convection_change" in c.effects and dh < MIN_H_CHANGE:
+    if dh < MIN_H_CHANGE:
         return (f"its fit changes h by {100 * dh:.0f} % at most, under the {100 * MIN_H_CHANGE:.0f} % "
                 f"a constant h is inexact by anyway (a change no constant h makes is larger)")
     return ""
@@ -1659,9 +1661,8 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
                     model.predict([switched_off(c.setting()) for c in singles])))
     single_cmp = {c.name: replace(compare_effect(data, nominal.pred, c, hold_mask),
                                   vs_off=off_compare(data, offs[c.name], c.pred, run.fit_mask,
-                                                     c.effects[0]))
-                  for c in singles}
-    single_cmp = {c.name: replace(single_cmp[c.name], unresolved=unresolved(model, c))
+                                                     c.effects[0]),
+                                  unresolved=unresolved(model, c))
                   for c in singles}
     null_cmp = {c.name: compare(data, nominal.pred, c.pred, hold_mask) for c in nulls}
     nulls.sort(key=lambda c: null_cmp[c.name].gap_after_deg)
