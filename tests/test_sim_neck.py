@@ -12,18 +12,29 @@ from neck_env.rig.sim_neck import SimulatedNeck
 
 
 class ClockHarness:
-    """What SimulatedNeck uses of SimavrHarness: a simulated clock, relay events, sensors."""
+    """What SimulatedNeck uses of SimavrHarness: a simulated clock, relay events, sensors (an
+    IMU sample queue served by time, as the harness's IMU_AT)."""
 
     def __init__(self, events):
         self.t_us = 0
         self.relay_events = events
-        self.imu = None
+        self._imu = None
+        self.queue = []
 
     def sim_time_us(self):
         return self.t_us
 
     def set_imu(self, *raw):
-        self.imu = raw
+        self._imu = raw
+
+    def imu_at(self, samples):
+        t0 = samples[0][0]
+        self.queue = [s for s in self.queue if s[0] < t0] + [tuple(s) for s in samples]
+
+    @property
+    def imu(self):
+        due = [s for s in self.queue if s[0] <= self.t_us]
+        return due[-1][1:] if due else self._imu
 
     def set_adc(self, ch, v):
         pass
@@ -77,3 +88,28 @@ def test_gyro_bias_drift_grows_with_the_emulators_time():
     assert h.imu[3] / lsb == pytest.approx(rate * 20.0, abs=1 / lsb)
     assert h.imu[4] / lsb == pytest.approx(rate * 20.0, abs=1 / lsb)
     assert h.imu[5] == 0 and still.gyro_drift_dps_per_s == 0.0
+
+
+def test_a_relay_edge_learnt_late_rewinds_the_plant_to_it():
+    """The plant runs ahead of the emulator's clock; a relay edge that happened after its last
+    update (its thread scheduled 100 ms late, the plant already past the edge) sends it back to
+    the edge, and the result is the trajectory -- and the IMU sample due now -- it would have
+    had knowing the edge on time."""
+    edge = RelayEvent(1_150_000, 0, True)
+    ref_h, late_h = ClockHarness([edge]), ClockHarness([])
+    ref = SimulatedNeck(ref_h, supply_current_A=7.0, sensors=None)
+    late = SimulatedNeck(late_h, supply_current_A=7.0, sensors=None)
+    ref.update()
+    late.update()
+    for k in range(1, 41):  # 4 s, one update per 100 ms
+        ref_h.t_us = late_h.t_us = k * 100_000
+        if k == 12:  # the edge at 1.15 s, learnt at 1.2 s: the plant had run to 1.35 s
+            assert late.t_us >= 1_350_000
+            late_h.relay_events = [edge]
+        ref.update()
+        late.update()
+    assert late.rewinds == 1 and ref.rewinds == 0
+    np.testing.assert_allclose([e[1] for e in late.log], [e[1] for e in ref.log], atol=1e-12)
+    assert late.log[-1][3] == (True, False, False)
+    assert late_h.imu == ref_h.imu and late.theta_deg == ref.theta_deg > 3.0
+    np.testing.assert_allclose(late.temperatures_C, ref.temperatures_C)

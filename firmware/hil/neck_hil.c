@@ -140,6 +140,42 @@ static struct {
 	uint64_t reads, writes;
 } mpu;
 
+/* IMU_AT: samples stamped with the simulated time from which they hold. A plant in another
+ * process computes ahead of the MCU (relays as they are) and queues its samples; the firmware
+ * reads the one due at its own clock however late that process is scheduled, where serving only
+ * the latest value would hand it a tilt as old as the plant's lateness. */
+#define IMU_QUEUE 256
+static uint64_t sim_us(void);
+static struct {
+	uint64_t t_us;
+	int16_t v[6]; /* ax ay az gx gy gz */
+} imu_q[IMU_QUEUE];
+static int imu_q_len;
+static int imu_q_used;             /* a plant queues samples: their age is tracked */
+static uint64_t imu_q_served_t_us; /* time stamp of the sample the registers hold */
+static uint64_t stat_imu_age_max_us; /* oldest sample a burst read was served (simulated us) */
+
+static void imu_queue_apply(uint64_t now) {
+	int k = 0;
+	while (k < imu_q_len && imu_q[k].t_us <= now) k++;
+	if (!k) {
+		if (imu_q_used && now - imu_q_served_t_us > stat_imu_age_max_us)
+			stat_imu_age_max_us = now - imu_q_served_t_us;
+		return;
+	}
+	imu_q_served_t_us = imu_q[k - 1].t_us;
+	if (now - imu_q_served_t_us > stat_imu_age_max_us) stat_imu_age_max_us = now - imu_q_served_t_us;
+	const int16_t *v = imu_q[k - 1].v;
+	mpu.sensor[0] = v[0];
+	mpu.sensor[1] = v[1];
+	mpu.sensor[2] = v[2];
+	mpu.sensor[4] = v[3];
+	mpu.sensor[5] = v[4];
+	mpu.sensor[6] = v[5];
+	memmove(imu_q, imu_q + k, (size_t)(imu_q_len - k) * sizeof imu_q[0]);
+	imu_q_len -= k;
+}
+
 static void mpu_defaults(void) {
 	memset(mpu.reg, 0, sizeof(mpu.reg));
 	mpu.reg[0x6B] = 0x40; /* PWR_MGMT_1: SLEEP set at power-up */
@@ -148,6 +184,7 @@ static void mpu_defaults(void) {
 static uint8_t mpu_read_reg(uint8_t r) {
 	r &= 0x7F;
 	if (r == 0x75) return mpu.whoami;
+	if (r == 0x3B) imu_queue_apply(sim_us()); /* a burst starts here: one sample, whole */
 	if (r >= 0x3B && r <= 0x48) {
 		/* Asleep: the data registers are not updated (we report zeros). */
 		if (mpu.reg[0x6B] & 0x40) return 0;
@@ -344,6 +381,44 @@ static void handle_line(char *line) {
 		mpu.sensor[5] = (int16_t)v[4];
 		mpu.sensor[6] = (int16_t)v[5];
 		out("OK IMU");
+	} else if (!strcmp(cmd, "IMU_AT")) {
+		/* groups of "t_us ax ay az gx gy gz", t ascending; queued samples at or after the
+		 * first t are replaced (the plant recomputed them after a relay edge) */
+		const char *p = args;
+		int n = 0, off = 0;
+		unsigned long long t;
+		int v[6];
+		int first = 1;
+		while (sscanf(p, "%llu %d %d %d %d %d %d %n", &t, &v[0], &v[1], &v[2], &v[3], &v[4], &v[5], &off) == 7) {
+			for (int i = 0; i < 6; i++)
+				if (v[i] < -32768 || v[i] > 32767) {
+					out("ERR IMU_AT value out of int16 range");
+					return;
+				}
+			if (first) {
+				while (imu_q_len && imu_q[imu_q_len - 1].t_us >= t) imu_q_len--;
+				if (!imu_q_used) imu_q_served_t_us = sim_us(); /* from the plain IMU value */
+				imu_q_used = 1;
+				first = 0;
+			} else if (imu_q_len && t <= imu_q[imu_q_len - 1].t_us) {
+				out("ERR IMU_AT times must ascend");
+				return;
+			}
+			if (imu_q_len == IMU_QUEUE) {
+				out("ERR IMU_AT queue full (%d samples)", IMU_QUEUE);
+				return;
+			}
+			imu_q[imu_q_len].t_us = t;
+			for (int i = 0; i < 6; i++) imu_q[imu_q_len].v[i] = (int16_t)v[i];
+			imu_q_len++;
+			n++;
+			p += off;
+		}
+		if (!n || *p) {
+			out("ERR IMU_AT needs groups of t_us ax ay az gx gy gz");
+			return;
+		}
+		out("OK IMU_AT");
 	} else if (!strcmp(cmd, "IMU_TEMP")) {
 		int t;
 		if (sscanf(args, "%d", &t) != 1 || t < -32768 || t > 32767) {
@@ -428,11 +503,12 @@ static void handle_line(char *line) {
 		out("OK RESET");
 	} else if (!strcmp(cmd, "STATS?")) {
 		out("STATS rx=%llu tx=%llu tx_dropped=%llu rx_dropped=%llu resets=%llu lag_resync=%llu "
-		    "imu_reads=%llu imu_writes=%llu sp_min=%u",
+		    "imu_reads=%llu imu_writes=%llu imu_age_max_us=%llu sp_min=%u",
 		    (unsigned long long)stat_rx_bytes, (unsigned long long)stat_tx_bytes,
 		    (unsigned long long)stat_tx_dropped, (unsigned long long)stat_rx_dropped,
 		    (unsigned long long)resets_seen, (unsigned long long)stat_lag_resync,
-		    (unsigned long long)mpu.reads, (unsigned long long)mpu.writes, (unsigned)sp_min);
+		    (unsigned long long)mpu.reads, (unsigned long long)mpu.writes,
+		    (unsigned long long)stat_imu_age_max_us, (unsigned)sp_min);
 	} else {
 		out("ERR unknown command %s", cmd);
 	}

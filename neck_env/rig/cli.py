@@ -353,7 +353,7 @@ def cmd_emulate(args: argparse.Namespace, out=print) -> int:
     import time
 
     from ..params import NeckParams
-    from .sim_neck import EmulatedRig
+    from .sim_neck import PLANT_DT_US, EmulatedRig
     from .simavr import HarnessUnavailable
 
     effects = parse_effects(args.effects)
@@ -396,6 +396,12 @@ def cmd_emulate(args: argparse.Namespace, out=print) -> int:
                     out(f"supply file ignored: {shown}")
             time.sleep(0.2)
     finally:
+        try:
+            age_ms = rig.harness.stats()["imu_age_max_us"] / 1000.0
+            out(f"the firmware's IMU reads were at most {age_ms:.0f} ms old (the simulated neck's "
+                f"{PLANT_DT_US / 1000:g} ms steps; more: it fell behind, a busy machine)")
+        except Exception:  # noqa: BLE001 - a summary only; the emulator may already be gone
+            pass
         rig.close()
 
 

@@ -9,7 +9,10 @@ tests run: a rig to try every ``rig`` command on without hardware.
 MPU6050 accelerometer and gyro registers (``neck_env.sensors.imu_reading``, plus white noise
 and biases of ``SensorParams``) and, optionally, thermistor ADC counts. The physics clock is
 the emulator's own clock, so the firmware's timing (duty windows, watchdogs) and the plant
-agree whatever the emulator's speed; the host sees the same serial traffic as from a real UNO.
+agree whatever the emulator's speed; the plant runs ahead of that clock and queues its IMU
+samples by time, so the firmware reads the sample due at its own time however late the plant's
+thread is scheduled (a relay edge learnt late rewinds the plant to it); the host sees the same
+serial traffic as from a real UNO.
 
 The neck can carry the catalogue's effects (``neck_env.effects``: plant effects through
 ``apply_to_constants``, ``imu_misalignment`` through ``imu_mount``, ``actuation_delay`` by
@@ -40,6 +43,15 @@ from .simavr import HarnessError, SimavrHarness, build
 __all__ = ["SimulatedNeck", "EmulatedRig"]
 
 PLANT_DT_S = 0.01
+PLANT_DT_US = 10_000
+# The plant runs this far ahead of the MCU's clock and queues its IMU samples (``IMU_AT``): the
+# firmware reads the sample due at its own time even when the OS schedules the plant's thread
+# late. Serving only the latest value, a late thread handed the firmware a tilt as old as its
+# lateness -- an actuation delay the rig does not have, which one CI run named on the
+# effect-free emulated rig; holding the MCU for the plant instead (tried) stalled it into the
+# host's reply deadlines on a loaded machine.
+AHEAD_US = 250_000
+IMU_AT_BATCH = 40  # samples per IMU_AT line (the harness reads lines of up to 4 KiB)
 
 
 def _int16(v: float) -> int:
@@ -77,7 +89,10 @@ class SimulatedNeck:
         self.gyro_bias = self.rng.normal(0.0, s.gyro_bias_dps, 3)
         self.thermistors = int(thermistors)
         self.period_s = float(period_s)
-        self.t_us: int | None = None
+        self.t_us: int | None = None  # the plant's time: up to AHEAD_US past the emulator's
+        self._now_us = 0  # the emulator's time at the last update
+        self._snaps: list[tuple] = []  # the state at each boundary from the emulator's time on
+        self.rewinds = 0  # times a relay edge learnt late sent the plant back
         self.log: list[tuple[float, float, float, tuple[bool, bool, bool]]] = []  # (t_s, theta, phi, relays)
         self.error: BaseException | None = None
         self._pins = (False, False, False)
@@ -105,17 +120,24 @@ class SimulatedNeck:
 
     # -- one update ---------------------------------------------------------------------------
     def update(self) -> None:
-        """Advance the plant to the emulator's present time and publish the sensors."""
+        """Run the plant ``AHEAD_US`` past the emulator's present time, the relays as they are,
+        and queue the IMU samples the firmware will read (``IMU_AT``). A relay edge the plant
+        learns of only after computing past it rewinds it to the edge: every sample from there
+        on is computed again and replaces the queued ones."""
         now = self.h.sim_time_us()
+        self._now_us = now
         if self.t_us is None:
             self.t_us = self.t_start_us = now
-            self._publish(PLANT_DT_S)
+            self._snaps = [self._snapshot()]
+            self.h.set_imu(*self._imu_raw())
+            self._publish_thermistors()
             return
         events = self.h.relay_events
+        if self._event_i < len(events):
+            self._rewind(events[self._event_i].t_us + self.delay_us)
         cur = np.zeros((1, 3))
-        advanced = 0.0
-        while self.t_us < now:
-            t_end = min(now, self.t_us + int(PLANT_DT_S * 1e6))
+        samples = []
+        while self.t_us < now + AHEAD_US:
             # relay state at the start of the sub-step (10 ms resolution of switching)
             while (self._event_i < len(events)
                    and events[self._event_i].t_us + self.delay_us <= self.t_us):
@@ -125,21 +147,44 @@ class SimulatedNeck:
                 self._pins = tuple(pins)  # type: ignore[assignment]
                 self._event_i += 1
             cur[0] = [self.supply_current_A if p else 0.0 for p in self._pins]
-            h = (t_end - self.t_us) * 1e-6
             self._q_prev = self.x[0, L.S_Q:L.S_Q + 3].copy()
             with self.lock:
-                step_inplace(self.consts, self.x, cur, h, 1, self._left, self._out)
-                self.log.append((t_end * 1e-6, float(self._out[0, L.O_THETA]),
+                step_inplace(self.consts, self.x, cur, PLANT_DT_S, 1, self._left, self._out)
+                self.t_us += PLANT_DT_US
+                self.log.append((self.t_us * 1e-6, float(self._out[0, L.O_THETA]),
                                  float(self._out[0, L.O_PHI]), self._pins))
-            self.t_us = t_end
-            advanced = h
-        if advanced > 0:
-            self._publish(advanced)
+                self._snaps.append(self._snapshot())
+            samples.append((self.t_us, *self._imu_raw()))
+        for i in range(0, len(samples), IMU_AT_BATCH):
+            self.h.imu_at(samples[i:i + IMU_AT_BATCH])
+        with self.lock:  # an edge not yet known happens after now: a rewind never goes earlier
+            keep = next(i for i in range(len(self._snaps) - 1, -1, -1) if self._snaps[i][0] <= now)
+            del self._snaps[:keep]
+        self._publish_thermistors()
 
-    def _publish(self, dt_s: float) -> None:
+    def _snapshot(self) -> tuple:
+        """The state at the sub-step boundary ``t_us``, before the relay edges due there."""
+        return (self.t_us, self.x.copy(), self._q_prev.copy(), self._pins, self._event_i,
+                self._left.copy(), len(self.log))
+
+    def _rewind(self, t_act_us: int) -> None:
+        """Back to the last boundary at or before ``t_act_us`` if the plant has run past it."""
+        if t_act_us >= self.t_us:
+            return
+        with self.lock:
+            i = max((k for k, sn in enumerate(self._snaps) if sn[0] <= t_act_us), default=0)
+            t, x, q_prev, pins, event_i, left, n_log = self._snaps[i]
+            self.t_us, self._pins, self._event_i = t, pins, event_i
+            self.x[:], self._q_prev[:], self._left[:] = x, q_prev, left
+            del self.log[n_log:]
+            del self._snaps[i + 1:]
+            self.rewinds += 1
+
+    def _imu_raw(self) -> tuple[int, ...]:
+        """The IMU registers (ax ay az gx gy gz, raw) for the plant's state at ``t_us``."""
         tip, dtip, rot, v, w, r = self._scratch
         q = self.x[0, L.S_Q:L.S_Q + 3].copy()
-        imu_reading(q, self._q_prev, max(dt_s, 1e-6), self.mount, tip, dtip, rot, v, w, r)
+        imu_reading(q, self._q_prev, PLANT_DT_S, self.mount, tip, dtip, rot, v, w, r)
         a = r[:3] + self.accel_bias
         g = r[3:] + self.gyro_bias
         if self.gyro_drift_dps_per_s:
@@ -148,21 +193,33 @@ class SimulatedNeck:
         if self.sensors is not None:
             a = a + self.rng.normal(0.0, self.sensors.accel_noise_g, 3)
             g = g + self.rng.normal(0.0, self.sensors.gyro_noise_dps, 3)
-        self.h.set_imu(*(_int16(x * P.ACCEL_LSB_PER_G) for x in a),
-                       *(_int16(x * P.GYRO_LSB_PER_DPS) for x in g))
+        return (*(_int16(x * P.ACCEL_LSB_PER_G) for x in a),
+                *(_int16(x * P.GYRO_LSB_PER_DPS) for x in g))
+
+    def _publish_thermistors(self) -> None:
+        if not self.thermistors:
+            return
+        T = self.temperatures_C
         for k in range(3):
             if self.thermistors >> k & 1:
-                self.h.set_adc(k, int(round(P.celsius_to_ntc_adc(float(self.x[0, L.S_T + k])))))
+                self.h.set_adc(k, int(round(P.celsius_to_ntc_adc(float(T[k])))))
 
     @property
     def theta_deg(self) -> float:
+        """The head's tilt at the emulator's present time (the plant runs ahead of it)."""
         with self.lock:
-            return float(self._out[0, L.O_THETA]) if self.log else 0.0
+            past = [e for e in self.log[-(AHEAD_US // PLANT_DT_US + 2):] if e[0] * 1e6 <= self._now_us]
+            return past[-1][1] if past else 0.0
 
     @property
     def temperatures_C(self) -> np.ndarray:
+        """The springs' temperatures at the emulator's present time."""
         with self.lock:
-            return self.x[0, L.S_T:L.S_T + 3].copy()
+            if not self._snaps:
+                return self.x[0, L.S_T:L.S_T + 3].copy()
+            sn = max((sn for sn in self._snaps if sn[0] <= self._now_us), key=lambda sn: sn[0],
+                     default=self._snaps[0])
+            return sn[1][0, L.S_T:L.S_T + 3].copy()
 
     # -- background thread --------------------------------------------------------------------
     def _run(self) -> None:

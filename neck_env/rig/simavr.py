@@ -27,6 +27,7 @@ import subprocess
 import threading
 import time
 from dataclasses import dataclass
+from typing import Sequence
 from pathlib import Path
 
 __all__ = [
@@ -280,6 +281,11 @@ class SimavrHarness:
     def set_imu(self, ax: int, ay: int, az: int, gx: int, gy: int, gz: int) -> None:
         """Raw int16 register values the fake MPU6050 returns from now on."""
         self.command(f"IMU {int(ax)} {int(ay)} {int(az)} {int(gx)} {int(gy)} {int(gz)}")
+
+    def imu_at(self, samples: Sequence[Sequence[int]]) -> None:
+        """Queue IMU samples ``(t_us, ax, ay, az, gx, gy, gz)`` (raw, ``t_us`` ascending): each
+        is served from its simulated time on, replacing queued samples at or after the first."""
+        self.command("IMU_AT " + " ".join(" ".join(str(int(v)) for v in smp) for smp in samples))
 
     def set_imu_temp(self, raw: int) -> None:
         self.command(f"IMU_TEMP {int(raw)}")
