@@ -27,8 +27,8 @@ import subprocess
 import threading
 import time
 from dataclasses import dataclass
-from typing import Sequence
 from pathlib import Path
+from typing import Sequence
 
 __all__ = [
     "HarnessUnavailable",
