@@ -405,7 +405,14 @@ static void handle_line(char *line) {
 				return;
 			}
 			if (imu_q_len == IMU_QUEUE) {
-				out("ERR IMU_AT queue full (%d samples)", IMU_QUEUE);
+				/* nobody read the IMU (unplugged): the due samples become the registers */
+				uint64_t age_max = stat_imu_age_max_us, served = imu_q_served_t_us;
+				imu_queue_apply(sim_us());
+				stat_imu_age_max_us = age_max; /* not a read */
+				if (imu_q_len < IMU_QUEUE) imu_q_served_t_us = served > imu_q_served_t_us ? served : imu_q_served_t_us;
+			}
+			if (imu_q_len == IMU_QUEUE) {
+				out("ERR IMU_AT queue full (%d samples ahead of the MCU)", IMU_QUEUE);
 				return;
 			}
 			imu_q[imu_q_len].t_us = t;
