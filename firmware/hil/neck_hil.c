@@ -155,16 +155,12 @@ static int imu_q_used;             /* a plant queues samples: their age is track
 static uint64_t imu_q_served_t_us; /* time stamp of the sample the registers hold */
 static uint64_t stat_imu_age_max_us; /* oldest sample a burst read was served (simulated us) */
 
-static void imu_queue_apply(uint64_t now) {
+/* The samples due at `now` leave the queue; the last of them becomes the registers. */
+static void imu_queue_take(uint64_t now) {
 	int k = 0;
 	while (k < imu_q_len && imu_q[k].t_us <= now) k++;
-	if (!k) {
-		if (imu_q_used && now - imu_q_served_t_us > stat_imu_age_max_us)
-			stat_imu_age_max_us = now - imu_q_served_t_us;
-		return;
-	}
+	if (!k) return;
 	imu_q_served_t_us = imu_q[k - 1].t_us;
-	if (now - imu_q_served_t_us > stat_imu_age_max_us) stat_imu_age_max_us = now - imu_q_served_t_us;
 	const int16_t *v = imu_q[k - 1].v;
 	mpu.sensor[0] = v[0];
 	mpu.sensor[1] = v[1];
@@ -176,6 +172,13 @@ static void imu_queue_apply(uint64_t now) {
 	imu_q_len -= k;
 }
 
+/* A burst read starts: serve the sample due now, and count how old it is. */
+static void imu_burst_start(uint64_t now) {
+	imu_queue_take(now);
+	if (imu_q_used && now - imu_q_served_t_us > stat_imu_age_max_us)
+		stat_imu_age_max_us = now - imu_q_served_t_us;
+}
+
 static void mpu_defaults(void) {
 	memset(mpu.reg, 0, sizeof(mpu.reg));
 	mpu.reg[0x6B] = 0x40; /* PWR_MGMT_1: SLEEP set at power-up */
@@ -184,7 +187,7 @@ static void mpu_defaults(void) {
 static uint8_t mpu_read_reg(uint8_t r) {
 	r &= 0x7F;
 	if (r == 0x75) return mpu.whoami;
-	if (r == 0x3B) imu_queue_apply(sim_us()); /* a burst starts here: one sample, whole */
+	if (r == 0x3B) imu_burst_start(sim_us()); /* one sample, whole, per burst */
 	if (r >= 0x3B && r <= 0x48) {
 		/* Asleep: the data registers are not updated (we report zeros). */
 		if (mpu.reg[0x6B] & 0x40) return 0;
@@ -406,10 +409,7 @@ static void handle_line(char *line) {
 			}
 			if (imu_q_len == IMU_QUEUE) {
 				/* nobody read the IMU (unplugged): the due samples become the registers */
-				uint64_t age_max = stat_imu_age_max_us, served = imu_q_served_t_us;
-				imu_queue_apply(sim_us());
-				stat_imu_age_max_us = age_max; /* not a read */
-				if (imu_q_len < IMU_QUEUE) imu_q_served_t_us = served > imu_q_served_t_us ? served : imu_q_served_t_us;
+				imu_queue_take(sim_us());
 			}
 			if (imu_q_len == IMU_QUEUE) {
 				out("ERR IMU_AT queue full (%d samples ahead of the MCU)", IMU_QUEUE);

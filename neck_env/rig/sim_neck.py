@@ -42,8 +42,8 @@ from .simavr import HarnessError, SimavrHarness, build
 
 __all__ = ["SimulatedNeck", "EmulatedRig"]
 
-PLANT_DT_S = 0.01
 PLANT_DT_US = 10_000
+PLANT_DT_S = PLANT_DT_US / 1e6
 # The plant runs this far ahead of the MCU's clock and queues its IMU samples (``IMU_AT``): the
 # firmware reads the sample due at its own time even when the OS schedules the plant's thread
 # late. Serving only the latest value, a late thread handed the firmware a tilt as old as its
