@@ -398,9 +398,34 @@ def test_the_fit_sees_every_regime_the_held_out_recordings_ask_for(monkeypatch):
         with monkeypatch.context() as mp:
             mp.setattr("neck_env.gap.diagnose._regime", lambda c: (0, 0))
             assert choose_holdout(SimpleNamespace(recordings=recs))[0][special].all()
-    assert _regime(coact.currents_A) == (2, 1) and _regime(cycles(0).currents_A) == (1, 3)
+    assert _regime(coact.currents_A) == (2, 1, 6.0) and _regime(cycles(0).currents_A) == (1, 3, 0.0)
     # a muscle on from the first sample is a pulse
-    assert _regime(np.array([[6.0, 0, 0], [0, 0, 0], [6.0, 0, 0]])) == (1, 2)
+    assert _regime(np.array([[6.0, 0, 0], [0, 0, 0], [6.0, 0, 0]])) == (1, 2, 0.0)
+
+
+def test_no_held_out_co_activation_runs_above_the_fitted_ones(monkeypatch):
+    # independent wide rig, seed 8507: co-activation sequences at 5.5 A (recording 2), 6.5 A
+    # (11) and 6 A (14); by time and muscle alone both of the higher ones are held out, so the
+    # fit saw two muscles together only at 5.5 A and the held-out 6.5 A sequence (46 deg, where
+    # single pulses stop at 34) was left 5.4 deg off by every fit
+    def seq(a, pattern):
+        return SimpleNamespace(currents_A=np.array([[a if m in on else 0.0 for m in range(3)]
+                                                    for on in pattern]))
+    single = lambda m, a: seq(a, [(), (m,), (m,), ()])
+    pulses = [(0, 5.0), None, (2, 4.5), (1, 5.5), (0, 5.0), (1, 8.0), (0, 6.0), (1, 5.5),
+              (2, 7.5), (0, 6.5), None, (0, 6.0), (2, 7.0), None, (1, 4.0)]
+    coact = {1: seq(5.5, [(), (0, 2), (2,), (0,), (1,), ()]),
+             10: seq(6.5, [(), (2,), (0, 1), (0, 2), ()]),
+             13: seq(6.0, [(), (0, 2), (2,), (1,), (0,), ()])}
+    recs = [coact[k] if p is None else single(*p) for k, p in enumerate(pulses)]
+    hold = choose_holdout(SimpleNamespace(recordings=recs))[0]
+    together = np.array([_regime(r.currents_A)[2] for r in recs])
+    assert 4 <= hold.sum() <= 6
+    assert together[hold].max() <= together[~hold].max()
+    assert not hold[10] and hold[[1, 10, 13]].any()
+    with monkeypatch.context() as mp:  # without that column, the 6.5 A sequence is held out
+        mp.setattr("neck_env.gap.diagnose._regime", lambda c: _regime(c)[:2])
+        assert choose_holdout(SimpleNamespace(recordings=recs))[0][10]
 
 
 def test_a_split_already_interpolating_is_left_alone():

@@ -201,15 +201,21 @@ def choose_holdout(ds: Dataset) -> tuple[np.ndarray, str]:
     return hold, f"{int(hold.sum())} of {R} recordings held out"
 
 
-def _regime(currents_A: np.ndarray) -> tuple[int, int]:
+def _regime(currents_A: np.ndarray) -> tuple[int, int, float]:
     """What a recording asks of the model beyond its currents: the most muscles powered at
     once (a co-activation sequence bends the neck between muscles, and its phi is set by
-    their balance), and the most pulses one muscle gets (repeated cycles start warm)."""
-    on = np.asarray(currents_A) > 0
+    their balance), the most pulses one muscle gets (repeated cycles start warm), and the
+    highest current at which two or more muscles are on together (0 without co-activation:
+    how far two muscles bend the neck together is the model's geometry at its largest tilts,
+    which single pulses at the same current do not reach)."""
+    cur = np.asarray(currents_A, dtype=float)
+    on = cur > 0
     if on.size == 0:
-        return 0, 0
+        return 0, 0, 0.0
     edges = np.diff(on.astype(np.int8), axis=0) == 1
-    return int(on.sum(axis=1).max()), int((edges.sum(axis=0) + on[0]).max())
+    together = on.sum(axis=1) >= 2
+    coact_A = float(cur[together].max()) if together.any() else 0.0
+    return int(on.sum(axis=1).max()), int((edges.sum(axis=0) + on[0]).max()), coact_A
 
 
 def _interpolating(hold: np.ndarray, peak_A: np.ndarray,
@@ -217,7 +223,7 @@ def _interpolating(hold: np.ndarray, peak_A: np.ndarray,
     """Swap held-out recordings so that the held-out ones sit inside the fitted currents: none
     drives a muscle harder than the fitting set does, none runs at a supply current below
     the fitting set's lowest, and none goes beyond the fitting set's ``regime`` (``_regime``:
-    more muscles at once, more pulses on a muscle).
+    more muscles at once, more pulses on a muscle, muscles on together at a higher current).
 
     A held-out recording beyond the fitted currents tests the baseline's extrapolation (the
     trade-off of C_A, gamma_L and EI that the fitting currents leave loose), not the effect:
