@@ -213,9 +213,10 @@ def _regime(currents_A: np.ndarray) -> tuple[int, int, float]:
     if on.size == 0:
         return 0, 0, 0.0
     edges = np.diff(on.astype(np.int8), axis=0) == 1
-    together = on.sum(axis=1) >= 2
+    n_on = on.sum(axis=1)
+    together = n_on >= 2
     coact_A = float(cur[together].max()) if together.any() else 0.0
-    return int(on.sum(axis=1).max()), int((edges.sum(axis=0) + on[0]).max()), coact_A
+    return int(n_on.max()), int((edges.sum(axis=0) + on[0]).max()), coact_A
 
 
 def _interpolating(hold: np.ndarray, peak_A: np.ndarray,

@@ -102,9 +102,15 @@ def test_pulse_reproduces_simulated_theta(rig, tmp_path):
 
 def test_host_silence_switches_relays_off(rig):
     h, neck, link = rig(7.0)
-    sent = []  # when the host last wrote a frame (a step's command or a lease heartbeat)
+    sent = []  # when the host wrote each frame (a step's command or a lease heartbeat)
     send = link.send
-    link.send = lambda msg: (seq := send(msg), sent.append(time.monotonic()))[0]
+
+    def timed_send(msg):
+        seq = send(msg)
+        sent.append(time.monotonic())
+        return seq
+
+    link.send = timed_send
     env = HardwareNeckEnv(link=link, action_mode="relay", episode_s=5.0, cooldown_s=0)
     env.reset(seed=0)
     for _ in range(4):
