@@ -20,6 +20,9 @@ kind               what is run                                                  
                                                                                            memory), fatigue, creep
 ``long_cool``      one muscle at 7 A for 5 s, then a 55 s cooling tail                      convection h (and whether h
                                                                                            depends on temperature)
+``reference``      muscle 1 at 7 A for 5 s from t = 2 s, first in the session: the same    what changed with use, with
+                   input as the first 30 s of muscle 1's ``long_cool`` near its end        no model (``gap.repeats``):
+                                                                                           fatigue, a draft, a drift
 =================  ======================================================================  ==========================
 
 Protocols:
@@ -27,8 +30,10 @@ Protocols:
 * ``mixed`` (default, 15 x 30 s): 9 pulses, 3 sequences, 3 cycle recordings, shuffled with the
   seed (the order matters only for effects that build up over use).
 * ``paper``: the paper's own 5 s pulses (4-5 A of its Fig. 7, 6-8 A of its Table 1).
-* ``rig``: ``mixed`` followed by two ``long_cool`` recordings (60 s): what the rig should record;
-  the long tails separate a draft or a temperature-dependent h from a plain recalibration of h.
+* ``rig``: a ``reference`` pulse, ``mixed``, then two ``long_cool`` recordings (60 s): what the
+  rig should record. The long tails separate a draft or a temperature-dependent h from a plain
+  recalibration of h; the reference and muscle 1's long tail give the same input at the
+  session's start and end, so a loss of actuation with use (fatigue) shows against no model.
 * ``drawn``: the same kinds with another lab's timing, drawn per recording: pulses from
   t = 0.5-4 s held 2.5-9 s at any current in 4-8 A (0.1 A steps), relay sequences of 1-5 s
   segments at 4.5-7.5 A, 2-4 cycles of 1.5-4 s on and 2-8 s off, and at least 8 s of cooling.
@@ -57,6 +62,7 @@ RECORDING_PROTOCOLS = ("mixed", "paper", "rig")  # what a rig records (the rig C
 PROTOCOLS = (*RECORDING_PROTOCOLS, "drawn")  # and the generators' check of the timing
 PULSE_START_S = 2.0
 PULSE_ON_S = 5.0
+REFERENCE_A = 7.0  # the rig protocol's reference pulse and long cooling tails (muscle 1, 2)
 
 
 @dataclass(frozen=True)
@@ -181,8 +187,12 @@ def diagnosis_protocol(seed: int | np.random.Generator = 0, protocol: str = "mix
         raise ValueError(f"a protocol needs >= 1 recording longer than "
                          f"{PULSE_START_S + PULSE_ON_S:g} s (got {n_recordings}, {duration_s} s)")
     out: list[Recording] = []
-    width = max(2, len(str(n_recordings + (2 if protocol == "rig" else 0))))
+    width = max(2, len(str(n_recordings + (3 if protocol == "rig" else 0))))
     nm = lambda: f"rec_{len(out) + 1:0{width}d}"
+    if protocol == "rig":
+        # the same input as the first 30 s of its long_cool on muscle 1: the session opens and
+        # closes with it, so what changed with use shows without a model (gap.repeats)
+        out.append(_pulse(nm(), 0, REFERENCE_A, duration_s, kind="reference"))
     if protocol == "paper":
         amps = [4.0, 4.25, 4.5, 4.75, 5.0, 6.0, 7.0, 8.0]
         combos = [(m, a) for a in amps for m in range(3)]
@@ -231,7 +241,7 @@ def diagnosis_protocol(seed: int | np.random.Generator = 0, protocol: str = "mix
                                  a, float(duration_s), segs))
     if protocol == "rig":
         for m in (0, 1):
-            out.append(_pulse(nm(), m, 7.0, max(60.0, duration_s), kind="long_cool"))
+            out.append(_pulse(nm(), m, REFERENCE_A, max(60.0, duration_s), kind="long_cool"))
     return out
 
 

@@ -32,7 +32,9 @@
    each responsible single the first does not significantly beat); with none responsible but a
    large systematic gap, pairs of the best singles; and effects ``ambiguous`` with a baseline
    shift. Where the recordings carry measured currents (``currents.check``), they settle
-   ``actuation_delay`` and ``supply_limit`` whatever the tilt said (``_with_currents``).
+   ``actuation_delay`` and ``supply_limit`` whatever the tilt said (``_with_currents``); where
+   they repeat an input over the session (``repeats.check``: the ``rig`` protocol's reference
+   pulse), a bend lost with use names ``sma_fatigue`` (``_with_repeats``).
 5. **Conclusion** (``_conclude``): the final model (baseline + verdict) refitted on all
    recordings; parameter uncertainties and identifiability from its Jacobian; localization of
    the nominal and of the remaining residual; ``unexplained`` when a large systematic residual
@@ -53,7 +55,7 @@ from scipy.stats import f as f_dist
 from .. import effects as fx
 from ..physics.plant import cold_terminals_cooling_time_constant_s, cooling_time_constant_s
 from ..recording import Dataset
-from . import currents, localize
+from . import currents, localize, repeats
 from .fit import Candidate, Fitter, covariance
 from .model import (DRAFT_FROM, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, SCANNED, STRUCTURE,
                     SUPPLY_OFF_V, Model, ParamSpec,
@@ -1234,6 +1236,8 @@ class Diagnosis:
     moved_deg: float = math.inf  # ``actuation_deg``: below ``NO_ACTUATION_DEG`` nothing actuated
     measured_currents: currents.CurrentCheck | None = None  # where recorded (i1_meas..)
     by_currents: dict = field(default_factory=dict)  # effect -> "named" / "dropped" by them
+    repeats: repeats.RepeatCheck | None = None  # where the dataset repeats an input
+    by_repeats: dict = field(default_factory=dict)  # effect -> "named" by them
 
 
 def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
@@ -1527,6 +1531,7 @@ class _Decision:
     pair_cmp: dict[str, Comparison]
     ambiguous: list[dict]
     by_currents: dict[str, str] = field(default_factory=dict)  # effect -> "named" / "dropped"
+    by_repeats: dict[str, str] = field(default_factory=dict)  # effect -> "named"
 
 
 @dataclass
@@ -1569,11 +1574,15 @@ def diagnose(ds: Dataset, log=None, max_iter: int = 12, spring_modulus: bool = F
     measured = currents.check(ds)
     for line in currents.describe(measured.to_dict()) if measured is not None else []:
         run.say(line)
+    repeated = repeats.check(ds)
+    for line in repeats.describe(repeated.to_dict()) if repeated is not None else []:
+        run.say(line)
     base = _calibrate(run)
     terms = None if terminals else _check_terminals(run, base)
     att = _attribute(run, base.nominal)
     dec = _with_currents(run, att, _decide(run, base.nominal, att), measured)
-    return _conclude(run, base, att, dec, terms, measured)
+    dec = _with_repeats(run, att, dec, repeated)
+    return _conclude(run, base, att, dec, terms, measured, repeated)
 
 
 def _readings_note(data: Prepared) -> str:
@@ -1924,12 +1933,39 @@ def _with_currents(run: _Run, att: _Attribution, dec: _Decision,
     """4b. Where the recordings carry measured currents, they settle ``actuation_delay`` and
     ``supply_limit`` directly (``currents.check``): one they show is named, one they rule out is
     dropped, whatever the tilt made of it (the tilt sees either only through the springs' heat,
-    where a later transformation or a larger heat capacity looks the same). The verdict model
-    is then refitted on the fitting recordings with the effects it now holds, the added ones
-    started from their own fit (a delay from the measured lag)."""
-    decides = measured.decides() if measured is not None else {}
-    if not decides:
+    where a later transformation or a larger heat capacity looks the same). A delay they name
+    starts from the measured lag."""
+    if measured is None:
         return dec
+    start = ({"actuation_delay": {"actuation_delay.delay_s": measured.lag.median_s}}
+             if measured.lag is not None else {})  # u_from clips it to the bounds
+    dec, changes = _settle(run, att, dec, measured.decides(), start,
+                           f"on the measured currents (actuation delay {measured.delay}, "
+                           f"supply limit {measured.limit})")
+    return replace(dec, by_currents=changes)
+
+
+def _with_repeats(run: _Run, att: _Attribution, dec: _Decision,
+                  repeated: repeats.RepeatCheck | None) -> _Decision:
+    """4c. Where the dataset repeats an input over the session (``repeats.check``), a bend lost
+    with use names ``sma_fatigue`` whatever the model-based tests made of it: the two recordings
+    differ by what changed in between, not by anything the model gets wrong about the rig, and
+    a loss that a constant gamma_L cannot make is what the tilt alone cannot tell from one."""
+    if repeated is None:
+        return dec
+    dec, changes = _settle(run, att, dec, repeated.decides(), {},
+                           f"on the repeated inputs ({repeated.why})")
+    return replace(dec, by_repeats=changes)
+
+
+def _settle(run: _Run, att: _Attribution, dec: _Decision, decides: dict[str, bool],
+            start: dict[str, dict[str, float]], why: str) -> tuple[_Decision, dict[str, str]]:
+    """The verdict with the effects ``decides`` names added and those it rules out dropped
+    (and neither left ``ambiguous``), refitted on the fitting recordings with the effects it
+    now holds, an added one started from its own fit (or ``start[effect]``). Returns it and
+    effect -> "named" / "dropped"."""
+    if not decides:
+        return dec, {}
     ambiguous = [a for a in dec.ambiguous if a["effect"] not in decides]
     now = list(dec.verdict_c.effects)
     want = [e for e in now if decides.get(e, True)]
@@ -1937,20 +1973,18 @@ def _with_currents(run: _Run, att: _Attribution, dec: _Decision,
     changes = {e: "named" for e in want if e not in now}
     changes.update({e: "dropped" for e in now if e not in want})
     if not changes:
-        return replace(dec, ambiguous=ambiguous)
+        return replace(dec, ambiguous=ambiguous), {}
     vals = {k: v for k, v in dec.verdict_c.setting().items() if split_key(k)[0] not in changes}
     for e in (e for e, what in changes.items() if what == "named"):
         vals.update(_own_fit(att, e))
-    if changes.get("actuation_delay") == "named" and measured.lag is not None:
-        vals["actuation_delay.delay_s"] = measured.lag.median_s  # u_from clips it to the bounds
+        vals.update(start.get(e, {}))
     cand = effect_candidate(run.model, want, {}, vals)
     run.fitter.run([cand], max_iter=run.max_iter)
     if "convection_change" in want:
         settle_draft(run.model, cand, run.hold_rec, run.hold_mask)
     for e, what in changes.items():
-        run.say(f"  {e} {what} on the measured currents (actuation delay {measured.delay}, supply "
-                f"limit {measured.limit}); verdict model refitted: {cand.name or 'nominal'}")
-    return replace(dec, verdict_c=cand, ambiguous=ambiguous, by_currents=changes)
+        run.say(f"  {e} {what} {why}; verdict model refitted: {cand.name or 'nominal'}")
+    return replace(dec, verdict_c=cand, ambiguous=ambiguous), changes
 
 
 def _own_fit(att: _Attribution, effect: str) -> dict[str, float]:
@@ -1979,7 +2013,8 @@ def _named_on_temperatures(run: _Run, att: _Attribution,
 
 def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
               terms: _Terminals | None = None,
-              measured: currents.CurrentCheck | None = None) -> Diagnosis:
+              measured: currents.CurrentCheck | None = None,
+              repeated: repeats.RepeatCheck | None = None) -> Diagnosis:
     """5. Final fits on all recordings (nominal and corrected), uncertainties, localization,
     what remains unexplained."""
     data, model, hold_mask = run.data, run.model, run.hold_mask
@@ -2060,9 +2095,12 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
         reasons.append(why)
     absorbed = absorption(model, run.fitter, nominal, hold_mask)
     settled = measured.decides() if measured is not None else {}
-    for a in absorbed:  # what the tilt would hide, the currents have shown or ruled out
+    by_repeats = repeated.decides() if repeated is not None else {}
+    for a in absorbed:  # what the tilt would hide, the currents or the repeats have settled
         if a["effect"] in settled and a["separate"]:
             a["separate"] = "settled by the measured currents (measured_currents)"
+        elif a["effect"] in by_repeats and a["separate"]:
+            a["separate"] = "settled by the repeated inputs (repeats)"
     run.lap("absorption_s")
     run.timing["total_s"] = time.perf_counter() - run.t0
     return Diagnosis(data=data, model=model, hold_rec=run.hold_rec, split_note=run.split_note,
@@ -2078,7 +2116,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                            "nominal_heldout": base.full_plain}, timing=run.timing,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp,
                      absorption=absorbed, moved_deg=run.moved_deg, measured_currents=measured,
-                     by_currents=dec.by_currents)
+                     by_currents=dec.by_currents, repeats=repeated, by_repeats=dec.by_repeats)
 
 
 THERMAL_KEYS = ("cooling_time_constant_s", "convection_W_m2K",

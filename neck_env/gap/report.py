@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from .. import effects as fx
-from . import currents
+from . import currents, repeats
 from . import diagnose as D
 from .model import HEAT_CAPACITY_PRIOR_SIGMA, STRUCTURE, clip_to_catalogue
 
@@ -241,6 +241,8 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "measured_currents": (dg.measured_currents.to_dict()
                               if dg.measured_currents is not None else None),
         "verdict_by_currents": dict(dg.by_currents),
+        "repeats": dg.repeats.to_dict() if dg.repeats is not None else None,
+        "verdict_by_repeats": dict(dg.by_repeats),
         "absorption": [{"effect": a["effect"], "reference": {k: _r(v, 6) for k, v in a["reference"].items()},
                         "heldout_size_deg": _r(a["size_deg"]), "heldout_left_deg": _r(a["left_deg"]),
                         "absorbed": _r(a["absorbed"], 3), "by": list(a["by"]),
@@ -450,6 +452,10 @@ def text_report(rep: dict) -> str:
         L.extend(currents.describe(rep["measured_currents"], indent="  "))
         for e, what in rep.get("verdict_by_currents", {}).items():
             L.append(f"      {e} {what} on the measured currents, whatever the tilt said")
+    if rep.get("repeats"):
+        L.extend(repeats.describe(rep["repeats"], indent="  "))
+        for e, what in rep.get("verdict_by_repeats", {}).items():
+            L.append(f"      {e} {what} on the repeated inputs, whatever the tilt said")
     if rep.get("absorption"):
         L.append("What a baseline shift hides of each effect at its catalogue size, on these "
                  "recordings (held out; an effect mostly hidden cannot be told from the baseline "

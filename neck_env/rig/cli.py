@@ -160,8 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="dataset folder (recordings, meta.json, session.json); read it with "
                         "neck-gap DIR")
     s.add_argument("--protocol", choices=PROTOCOL_NAMES, default="rig",
-                   help="rig (default: mixed plus two 60 s cooling tails, ~17 recordings), mixed "
-                        "or paper")
+                   help="rig (default: a reference pulse, mixed, two 60 s cooling tails, 18 "
+                        "recordings; the reference and muscle 1's tail repeat one input), "
+                        "mixed or paper")
     s.add_argument("--seed", type=int, default=0,
                    help="seed of the protocol's order and levels (default 0); resume with the same")
     s.add_argument("--recordings", type=_positive(int, "--recordings"), default=None, metavar="N",

@@ -1,0 +1,291 @@
+"""Repeated inputs: what changed over a session, seen without a model.
+
+Two recordings that command the same currents from rest (the same muscles, supply and relay
+times) must bend the neck alike, whatever the model gets wrong about the rig: spring geometry,
+kinetics law or integrator are the same in both. What differs between them is what changed
+in between -- the springs' use (``sma_fatigue``: recoverable strain lost with the accumulated
+transformation), the air (a ``convection_change`` draft), the IMU's zero (a gyro drift, a
+backbone holding the neck off upright). The ``rig`` protocol opens with a reference pulse
+(muscle 1, 7 A, 5 s) whose input its ``long_cool`` on muscle 1 repeats near the end; any
+other recordings of a dataset with the same input are compared too.
+
+For each group of recordings with the same input, the first against the last, over the
+duration both cover, with the tilt taken as a vector from each recording's own rest reading
+(the mean before its first relay closes, so an IMU zero that moved between them does not
+count as bend):
+
+* **bend**: the largest tilt from rest (0.1 s running mean);
+* **return**: from the last relay opening to the tilt falling to half that bend (the cooling);
+* **rest shift**: how far the rest reading itself moved.
+
+A pair's verdict: ``rest moved`` when the rest reading moved by ``REST_FACTOR`` of the
+threshold below (the bends no longer start alike); ``bend fell`` / ``bend rose`` when the bend
+changed by more than ``LOSS_REL`` of itself, ``LOSS_MIN_DEG`` and ``NOISE_FACTOR`` times the
+readings' sample noise -- but a bend that fell while the return got shorter by more than
+``RETURN_TOL`` is ``cooling faster``: more cooling (a draft) heats the springs less *and*
+returns them sooner, while lost recoverable strain bends less and returns no sooner (the
+independent rig: drafts of x2 shortened the return by 50-58 %, fatigue lengthened it by 0-26 %);
+``cooling changed`` for a return that moved with the bend alike; ``unchanged`` within half of
+the threshold; ``undecided`` between, and ``too small`` under ``MIN_BEND_DEG`` of bend.
+
+The pair with the most use between them (at least ``MIN_SPAN`` of the session's recordings
+apart) decides ``sma_fatigue`` (``RepeatCheck.decides``): **found** when its bend fell with its
+cooling and rest alike -- fatigue is use that costs actuation, and the same input no longer
+returns the same bend -- and the diagnosis names it whatever the model-based tests made of it.
+A bend repeated alike is reported (``not seen``) but rules nothing out: an input that does not
+finish the transformation holds its bend by the stress shift, not by the recoverable strain
+fatigue takes. Anything else is ``undecided`` and leaves it to the model-based tests.
+
+Why these tolerances: effect-free rigs of both generators written apart from this model,
+recorded as the rig does (each recording after the wait for rest, springs within
+``REST.temperature_K`` of ambient), repeated the reference pulse's bend to within 1 % (0.25 deg
+at 29 deg); a spring starting those 3 K warm reaches its transformation a little sooner, which
+``LOSS_REL`` covers three times over. The return is the cooling's time constant on the springs'
+hysteresis: the same rig repeats it to a few per cent.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from ..recording import Dataset, Recording
+
+GRID_S = 0.02  # commands compared on this grid (zero-order hold)
+ON_A = 0.5  # a relay counts as on above this commanded current
+AMPS_TOL = 0.05  # the same supply current (A)
+EDGE_SHARE = 0.01  # grid points whose commands may differ (edges a sample apart on the rig)
+MIN_TAIL_S = 5.0  # cooling after the last relay opens, in the common duration
+MIN_PRE_S = 0.3  # a rest reading from at least this long before the first relay closes
+SMOOTH_S = 0.1
+MIN_BEND_DEG = 2.0
+LOSS_REL = 0.03
+LOSS_MIN_DEG = 0.3
+NOISE_FACTOR = 5.0
+RETURN_TOL = 0.15
+RETURN_MIN_S = 0.5
+REST_FACTOR = 0.5  # of the threshold: a rest reading that moved this far is no longer the same start
+MIN_SPAN = 0.5  # share of the session's recordings between a pair for "not found"
+
+
+@dataclass(frozen=True)
+class Repeat:
+    """The first and last of recordings with the same input."""
+
+    first: str
+    last: str
+    recordings: tuple[str, ...]  # every recording of the group, in dataset order
+    span: float  # (index of last - index of first) / (recordings in the dataset - 1)
+    common_s: float
+    input: str  # e.g. "muscle 1 at 7 A from 2 s to 7 s"
+    bend_first_deg: float
+    bend_last_deg: float
+    bend_change_deg: float
+    return_first_s: float | None
+    return_last_s: float | None
+    rest_shift_deg: float
+    noise_deg: float
+    threshold_deg: float
+    verdict: str
+
+
+@dataclass(frozen=True)
+class RepeatCheck:
+    """The report's ``repeats``."""
+
+    repeats: tuple[Repeat, ...]
+    fatigue: str  # "found", "not seen", "undecided"
+    why: str
+
+    def decides(self) -> dict[str, bool]:
+        """Effect name -> named (True) or ruled out (False), for the effects the repeats settle."""
+        # only a loss names; a bend repeated alike does not rule fatigue out: an input that does
+        # not finish the transformation holds its bend by the stress shift, not by the
+        # recoverable strain that fatigue takes (the independent rig: 9.5 deg at 7 A, no change)
+        return {"sma_fatigue": True} if self.fatigue == "found" else {}
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["repeats"] = [dict(asdict(r), recordings=list(r.recordings)) for r in self.repeats]
+        d["decides"] = self.decides()
+        return d
+
+
+def _hold(t: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    idx = np.clip(np.searchsorted(t, grid + 1e-9, side="right") - 1, 0, len(t) - 1)
+    return values[idx]
+
+
+def common_input(a: Recording, b: Recording) -> float | None:
+    """The duration from the start over which ``a`` and ``b`` command the same currents (with
+    relays closing in it and ``MIN_TAIL_S`` of cooling after), or None."""
+    dur = min(float(a.t[-1]), float(b.t[-1]))
+    grid = np.arange(0.0, dur, GRID_S)
+    if grid.size < 10:
+        return None
+    ca, cb = _hold(a.t, a.currents_A, grid), _hold(b.t, b.currents_A, grid)
+    on = (ca > ON_A) | (cb > ON_A)
+    if not on.any() or dur - grid[on.any(axis=1)].max() < MIN_TAIL_S:
+        return None
+    if (np.abs(ca - cb) > AMPS_TOL).any(axis=1).mean() > EDGE_SHARE:
+        return None
+    return dur
+
+
+def _describe(rec: Recording, dur: float) -> str:
+    grid = np.arange(0.0, dur, GRID_S)
+    cmd = _hold(rec.t, rec.currents_A, grid)
+    parts = []
+    for m in range(3):
+        on = cmd[:, m] > ON_A
+        edges = np.flatnonzero(np.diff(on.astype(int)))
+        if not on.any():
+            continue
+        starts = [grid[0]] if on[0] else []
+        starts += [grid[i + 1] for i in edges if on[i + 1]]
+        ends = [grid[i + 1] for i in edges if not on[i + 1]] + ([dur] if on[-1] else [])
+        amps = float(np.median(cmd[on, m]))
+        parts.append(f"muscle {m + 1} at {amps:g} A " + ", ".join(
+            f"{s:.1f}-{e:.1f} s" for s, e in zip(starts, ends)))
+    return "; ".join(parts)
+
+
+@dataclass(frozen=True)
+class _Shape:
+    bend_deg: float
+    return_s: float | None  # None: not back to half the bend by the end of the common duration
+    tail_s: float  # the common duration after the last relay opens
+    rest: np.ndarray
+    noise_deg: float
+
+
+def _shape(rec: Recording, dur: float) -> _Shape | None:
+    t = np.asarray(rec.t, float)
+    sel = t <= dur + 1e-9
+    t = t[sel]
+    th = np.radians(np.asarray(rec.theta_deg, float)[sel])
+    ph = np.radians(np.asarray(rec.phi_deg, float)[sel])
+    x, y = np.degrees(th) * np.cos(ph), np.degrees(th) * np.sin(ph)
+    ok = np.isfinite(x) & np.isfinite(y)
+    on = (rec.currents_A[sel] > ON_A).any(axis=1)
+    if not on.any():
+        return None
+    t_on, t_off = t[on][0], t[on][-1]
+    pre = ok & (t < t_on)
+    if not pre.any() or t_on - t[pre][0] < MIN_PRE_S:
+        return None
+    rest = np.array([x[pre].mean(), y[pre].mean()])
+    # sample-to-sample noise: a neck still settling before the pulse is not noise
+    noise = float(np.sqrt((np.diff(x[pre]).var() + np.diff(y[pre]).var()) / 2)) if pre.sum() > 2 else 0.0
+    dt = float(np.median(np.diff(t))) if t.size > 1 else GRID_S
+    k = max(1, int(round(SMOOTH_S / dt)))
+    bend = np.hypot(x - rest[0], y - rest[1])
+    win = np.ones(k)
+    # a running mean over the readings there are (no zero padding at the ends, none for gaps)
+    sm = np.convolve(np.where(ok, bend, 0.0), win, mode="same") / np.maximum(
+        np.convolve(ok.astype(float), win, mode="same"), 1e-12)
+    sm = np.where(np.convolve(ok.astype(float), win, mode="same") > 0, sm, np.nan)
+    after = t >= t_on
+    peak = float(np.nanmax(sm[after]))
+    below = np.flatnonzero((t > t_off) & (sm < 0.5 * peak))
+    ret = float(t[below[0]] - t_off) if below.size else None
+    return _Shape(bend_deg=peak, return_s=ret, tail_s=float(t[-1] - t_off), rest=rest,
+                  noise_deg=noise)
+
+
+def _pair_verdict(a: _Shape, b: _Shape) -> tuple[str, float]:
+    threshold = max(LOSS_MIN_DEG, LOSS_REL * a.bend_deg, NOISE_FACTOR * max(a.noise_deg, b.noise_deg))
+    if a.bend_deg < MIN_BEND_DEG:
+        return "too small", threshold
+    if float(np.hypot(*(b.rest - a.rest))) > REST_FACTOR * threshold:
+        # the IMU's zero or the neck's start moved as much as a change would be (a gyro drift
+        # bends the fused tilt during motion too; a backbone that held the neck off upright
+        # starts it elsewhere in its dead band): the bends no longer compare
+        return "rest moved", threshold
+    change = b.bend_deg - a.bend_deg
+    # the return as a lower bound where the tilt was not back by the end: the tail
+    ra = a.return_s if a.return_s is not None else a.tail_s
+    rb = b.return_s if b.return_s is not None else b.tail_s
+    known = a.return_s is not None or b.return_s is not None
+    faster = known and ra - rb > max(RETURN_MIN_S, RETURN_TOL * ra)
+    slower = known and rb - ra > max(RETURN_MIN_S, RETURN_TOL * ra)
+    if change <= -threshold:
+        # more cooling (a draft) heats the springs less and returns them sooner; lost strain
+        # bends less and returns no sooner
+        return ("cooling faster" if faster else "bend fell"), threshold
+    if change >= threshold:
+        return "bend rose", threshold
+    if faster or slower:
+        return "cooling changed", threshold
+    if abs(change) < 0.5 * threshold:
+        return "unchanged", threshold
+    return "undecided", threshold
+
+
+def check(ds: Dataset) -> RepeatCheck | None:
+    """Compare every group of same-input recordings, first against last; None when the
+    dataset repeats no input."""
+    recs: Sequence[Recording] = ds.recordings
+    n = len(recs)
+    groups: list[list[int]] = []
+    for i in range(n):
+        for g in groups:
+            if common_input(recs[g[0]], recs[i]) is not None:
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    out = []
+    for g in (g for g in groups if len(g) > 1):
+        a, b = recs[g[0]], recs[g[-1]]
+        dur = common_input(a, b)
+        sa, sb = _shape(a, dur), _shape(b, dur)
+        if sa is None or sb is None:
+            continue
+        verdict, thr = _pair_verdict(sa, sb)
+        out.append(Repeat(
+            first=a.name, last=b.name, recordings=tuple(recs[i].name for i in g),
+            span=(g[-1] - g[0]) / max(1, n - 1), common_s=round(dur, 2), input=_describe(a, dur),
+            bend_first_deg=sa.bend_deg, bend_last_deg=sb.bend_deg,
+            bend_change_deg=sb.bend_deg - sa.bend_deg, return_first_s=sa.return_s,
+            return_last_s=sb.return_s, rest_shift_deg=float(np.hypot(*(sb.rest - sa.rest))),
+            noise_deg=max(sa.noise_deg, sb.noise_deg), threshold_deg=thr, verdict=verdict))
+    if not out:
+        return None
+    # the pair with the most use between them decides: fatigue that a short pair shows, a
+    # long one shows more; a short pair's change is as likely the start it happened to get
+    out.sort(key=lambda r: -r.span)
+    r = out[0]
+    if r.span < MIN_SPAN:
+        return RepeatCheck(tuple(out), "undecided",
+                           f"no same input repeated over at least {100 * MIN_SPAN:.0f} % of "
+                           f"the session (longest: {r.first} -> {r.last}, {100 * r.span:.0f} %)")
+    if r.verdict == "bend fell":
+        return RepeatCheck(tuple(out), "found",
+                           f"{r.last} bent the neck {-r.bend_change_deg:.2f} deg less than "
+                           f"{r.first} ({r.bend_first_deg:.1f} deg) on the same input, cooling "
+                           f"and rest alike: the springs lost actuation with use")
+    if r.verdict == "unchanged":
+        return RepeatCheck(tuple(out), "not seen",
+                           f"{r.first} and {r.last}, {100 * r.span:.0f} % of the session "
+                           f"apart, bent the neck alike on the same input "
+                           f"({r.bend_change_deg:+.2f} deg of {r.bend_first_deg:.1f}): no "
+                           f"actuation lost with use at this input")
+    return RepeatCheck(tuple(out), "undecided", f"{r.first} -> {r.last}: {r.verdict}")
+
+
+def describe(rc: dict, indent: str = "") -> list[str]:
+    """Console lines for a ``RepeatCheck.to_dict()``."""
+    L = [f"{indent}Repeated inputs (no model: the same currents from rest, first against last):"]
+    for r in rc["repeats"]:
+        ret = ("" if r["return_first_s"] is None or r["return_last_s"] is None else
+               f", return {r['return_first_s']:.1f} -> {r['return_last_s']:.1f} s")
+        L.append(f"{indent}  {r['first']} -> {r['last']} ({r['input']}): bend "
+                 f"{r['bend_first_deg']:.2f} -> {r['bend_last_deg']:.2f} deg "
+                 f"({r['bend_change_deg']:+.2f}, threshold {r['threshold_deg']:.2f}){ret}, rest "
+                 f"moved {r['rest_shift_deg']:.2f} deg: {r['verdict']}")
+    L.append(f"{indent}  sma_fatigue: {rc['fatigue']} ({rc['why']})")
+    return L
