@@ -78,6 +78,10 @@ def test_only_the_same_currents_are_a_repeat():
     # long cooling tail on muscle 1 repeats its reference pulse), edges a sample apart allowed
     rc = repeats.check(_session(_rec("rec_01"), _rec("rec_10", duration_s=60.0, on=(2.02, 7.02))))
     assert rc is not None and rc.repeats[0].common_s == pytest.approx(30.0)
+    # times need only increase: a recording stamped from the session's clock compares alike
+    late = _rec("rec_10", bend_deg=28.0, seed=1)
+    late.t = late.t + 1234.5
+    assert repeats.check(_session(_rec("rec_01"), late)).fatigue == "found"
     # and a recording with no cooling tail in common compares nothing
     assert repeats.check(_session(_rec("rec_01", duration_s=9.0), _rec("rec_10"))) is None
 

@@ -137,7 +137,8 @@ SEPARATE = {
                          "thermistors, or repeat a pulse with the suspected draft removed",
     "sma_fatigue": "springs that lost recoverable strain and springs that never had it look "
                    "alike unless the same pulse is repeated through the session: record the "
-                   "same pulse at its start and at its end",
+                   "'rig' protocol (its reference pulse and muscle 1's long cooling tail repeat "
+                   "one input), or the same pulse at the session's start and at its end",
     "thermal_coupling": "heat drained into the neighbours looks like extra convection unless "
                         "their temperatures are seen: fit thermistors (T1..T3)",
     "supply_limit": "a supply that cannot drive the top currents and springs that heat less "

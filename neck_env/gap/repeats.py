@@ -18,8 +18,9 @@ count as bend):
 * **return**: from the last relay opening to the tilt falling to half that bend (the cooling);
 * **rest shift**: how far the rest reading itself moved.
 
-A pair's verdict: ``rest moved`` when the rest reading moved by ``REST_FACTOR`` of the
-threshold below (the bends no longer start alike); ``bend fell`` / ``bend rose`` when the bend
+A pair's verdict: ``rest moved`` when the rest reading moved by more than ``REST_FACTOR`` of
+both the threshold below and the bend's change (the bends no longer start alike: a start moved
+by r changes the bend from it by about r at most); ``bend fell`` / ``bend rose`` when the bend
 changed by more than ``LOSS_REL`` of itself, ``LOSS_MIN_DEG`` and ``NOISE_FACTOR`` times the
 readings' sample noise -- but a bend that fell while the return got shorter by more than
 ``RETURN_TOL`` is ``cooling faster``: more cooling (a draft) heats the springs less *and*
@@ -67,7 +68,7 @@ LOSS_MIN_DEG = 0.3
 NOISE_FACTOR = 5.0
 RETURN_TOL = 0.15
 RETURN_MIN_S = 0.5
-REST_FACTOR = 0.5  # of the threshold: a rest reading that moved this far is no longer the same start
+REST_FACTOR = 0.5  # of the threshold and the change: a rest reading moved this far is another start
 MIN_SPAN = 0.5  # share of the session's recordings between a pair for "not found"
 
 
@@ -114,6 +115,11 @@ class RepeatCheck:
         return d
 
 
+def _t(rec: Recording) -> np.ndarray:
+    """Time from the recording's first sample (the format asks only for increasing times)."""
+    return np.asarray(rec.t, float) - float(rec.t[0])
+
+
 def _hold(t: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
     idx = np.clip(np.searchsorted(t, grid + 1e-9, side="right") - 1, 0, len(t) - 1)
     return values[idx]
@@ -122,11 +128,12 @@ def _hold(t: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
 def common_input(a: Recording, b: Recording) -> float | None:
     """The duration from the start over which ``a`` and ``b`` command the same currents (with
     relays closing in it and ``MIN_TAIL_S`` of cooling after), or None."""
-    dur = min(float(a.t[-1]), float(b.t[-1]))
+    ta, tb = _t(a), _t(b)
+    dur = min(float(ta[-1]), float(tb[-1]))
     grid = np.arange(0.0, dur, GRID_S)
     if grid.size < 10:
         return None
-    ca, cb = _hold(a.t, a.currents_A, grid), _hold(b.t, b.currents_A, grid)
+    ca, cb = _hold(ta, a.currents_A, grid), _hold(tb, b.currents_A, grid)
     on = (ca > ON_A) | (cb > ON_A)
     if not on.any() or dur - grid[on.any(axis=1)].max() < MIN_TAIL_S:
         return None
@@ -137,7 +144,7 @@ def common_input(a: Recording, b: Recording) -> float | None:
 
 def _describe(rec: Recording, dur: float) -> str:
     grid = np.arange(0.0, dur, GRID_S)
-    cmd = _hold(rec.t, rec.currents_A, grid)
+    cmd = _hold(_t(rec), rec.currents_A, grid)
     parts = []
     for m in range(3):
         on = cmd[:, m] > ON_A
@@ -163,7 +170,7 @@ class _Shape:
 
 
 def _shape(rec: Recording, dur: float) -> _Shape | None:
-    t = np.asarray(rec.t, float)
+    t = _t(rec)
     sel = t <= dur + 1e-9
     t = t[sel]
     th = np.radians(np.asarray(rec.theta_deg, float)[sel])
@@ -200,12 +207,14 @@ def _pair_verdict(a: _Shape, b: _Shape) -> tuple[str, float]:
     threshold = max(LOSS_MIN_DEG, LOSS_REL * a.bend_deg, NOISE_FACTOR * max(a.noise_deg, b.noise_deg))
     if a.bend_deg < MIN_BEND_DEG:
         return "too small", threshold
-    if float(np.hypot(*(b.rest - a.rest))) > REST_FACTOR * threshold:
+    change = b.bend_deg - a.bend_deg
+    moved = float(np.hypot(*(b.rest - a.rest)))
+    if moved > REST_FACTOR * max(threshold, abs(change)):
         # the IMU's zero or the neck's start moved as much as a change would be (a gyro drift
         # bends the fused tilt during motion too; a backbone that held the neck off upright
-        # starts it elsewhere in its dead band): the bends no longer compare
+        # starts it elsewhere in its dead band): the bends no longer compare. A start moved by
+        # r changes the bend from it by about r at most, so a change twice that still counts
         return "rest moved", threshold
-    change = b.bend_deg - a.bend_deg
     # the return as a lower bound where the tilt was not back by the end: the tail
     ra = a.return_s if a.return_s is not None else a.tail_s
     rb = b.return_s if b.return_s is not None else b.tail_s
