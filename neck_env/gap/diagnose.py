@@ -1237,7 +1237,7 @@ class Diagnosis:
     moved_deg: float = math.inf  # ``actuation_deg``: below ``NO_ACTUATION_DEG`` nothing actuated
     measured_currents: currents.CurrentCheck | None = None  # where recorded (i1_meas..)
     by_currents: dict = field(default_factory=dict)  # effect -> "named" / "dropped" by them
-    repeats: repeats.RepeatCheck | None = None  # where the dataset repeats an input
+    repeated: repeats.RepeatCheck | None = None  # where the dataset repeats an input
     by_repeats: dict = field(default_factory=dict)  # effect -> "named" by them
 
 
@@ -1951,7 +1951,8 @@ def _with_repeats(run: _Run, att: _Attribution, dec: _Decision,
     """4c. Where the dataset repeats an input over the session (``repeats.check``), a bend lost
     with use names ``sma_fatigue`` whatever the model-based tests made of it: the two recordings
     differ by what changed in between, not by anything the model gets wrong about the rig, and
-    a loss that a constant gamma_L cannot make is what the tilt alone cannot tell from one."""
+    a constant gamma_L cannot bend one input less late in a session -- which the tilt's fit, under
+    the rig's structural misfit, often cannot tell from a smaller gamma_L."""
     if repeated is None:
         return dec
     dec, changes = _settle(run, att, dec, repeated.decides(), {},
@@ -2117,7 +2118,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                            "nominal_heldout": base.full_plain}, timing=run.timing,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp,
                      absorption=absorbed, moved_deg=run.moved_deg, measured_currents=measured,
-                     by_currents=dec.by_currents, repeats=repeated, by_repeats=dec.by_repeats)
+                     by_currents=dec.by_currents, repeated=repeated, by_repeats=dec.by_repeats)
 
 
 THERMAL_KEYS = ("cooling_time_constant_s", "convection_W_m2K",

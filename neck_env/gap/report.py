@@ -241,7 +241,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "measured_currents": (dg.measured_currents.to_dict()
                               if dg.measured_currents is not None else None),
         "verdict_by_currents": dict(dg.by_currents),
-        "repeats": dg.repeats.to_dict() if dg.repeats is not None else None,
+        "repeats": dg.repeated.to_dict() if dg.repeated is not None else None,
         "verdict_by_repeats": dict(dg.by_repeats),
         "absorption": [{"effect": a["effect"], "reference": {k: _r(v, 6) for k, v in a["reference"].items()},
                         "heldout_size_deg": _r(a["size_deg"]), "heldout_left_deg": _r(a["left_deg"]),
