@@ -194,9 +194,9 @@ def _shape(rec: Recording, dur: float) -> _Shape | None:
     bend = np.hypot(x - rest[0], y - rest[1])
     win = np.ones(k)
     # a running mean over the readings there are (no zero padding at the ends, none for gaps)
-    sm = np.convolve(np.where(ok, bend, 0.0), win, mode="same") / np.maximum(
-        np.convolve(ok.astype(float), win, mode="same"), 1e-12)
-    sm = np.where(np.convolve(ok.astype(float), win, mode="same") > 0, sm, np.nan)
+    count = np.convolve(ok.astype(float), win, mode="same")
+    sm = np.convolve(np.where(ok, bend, 0.0), win, mode="same") / np.maximum(count, 1e-12)
+    sm = np.where(count > 0, sm, np.nan)
     after = t >= t_on
     peak = float(np.nanmax(sm[after]))
     below = np.flatnonzero((t > t_off) & (sm < 0.5 * peak))
@@ -205,12 +205,12 @@ def _shape(rec: Recording, dur: float) -> _Shape | None:
                   noise_deg=noise)
 
 
-def _pair_verdict(a: _Shape, b: _Shape) -> tuple[str, float]:
+def _pair_verdict(a: _Shape, b: _Shape, moved: float) -> tuple[str, float]:
+    """The pair's verdict and loss threshold; ``moved``: how far the rest reading moved (deg)."""
     threshold = max(LOSS_MIN_DEG, LOSS_REL * a.bend_deg, NOISE_FACTOR * max(a.noise_deg, b.noise_deg))
     if a.bend_deg < MIN_BEND_DEG:
         return "too small", threshold
     change = b.bend_deg - a.bend_deg
-    moved = float(np.hypot(*(b.rest - a.rest)))
     if moved > REST_FACTOR * max(threshold, abs(change)):
         # the IMU's zero or the neck's start moved as much as a change would be (a gyro drift
         # bends the fused tilt during motion too; a backbone that held the neck off upright
@@ -241,28 +241,31 @@ def check(ds: Dataset) -> RepeatCheck | None:
     dataset repeats no input."""
     recs: Sequence[Recording] = ds.recordings
     n = len(recs)
-    groups: list[list[int]] = []
+    # each group: its members, and the duration its first one shares with its latest one
+    groups: list[tuple[list[int], list[float]]] = []
     for i in range(n):
-        for g in groups:
-            if common_input(recs[g[0]], recs[i]) is not None:
+        for g, durs in groups:
+            dur = common_input(recs[g[0]], recs[i])
+            if dur is not None:
                 g.append(i)
+                durs.append(dur)
                 break
         else:
-            groups.append([i])
+            groups.append(([i], []))
     out = []
-    for g in (g for g in groups if len(g) > 1):
-        a, b = recs[g[0]], recs[g[-1]]
-        dur = common_input(a, b)
+    for g, durs in (x for x in groups if len(x[0]) > 1):
+        a, b, dur = recs[g[0]], recs[g[-1]], durs[-1]
         sa, sb = _shape(a, dur), _shape(b, dur)
         if sa is None or sb is None:
             continue
-        verdict, thr = _pair_verdict(sa, sb)
+        moved = float(np.hypot(*(sb.rest - sa.rest)))
+        verdict, thr = _pair_verdict(sa, sb, moved)
         out.append(Repeat(
             first=a.name, last=b.name, recordings=tuple(recs[i].name for i in g),
             span=(g[-1] - g[0]) / max(1, n - 1), common_s=round(dur, 2), input=_describe(a, dur),
             bend_first_deg=sa.bend_deg, bend_last_deg=sb.bend_deg,
             bend_change_deg=sb.bend_deg - sa.bend_deg, return_first_s=sa.return_s,
-            return_last_s=sb.return_s, rest_shift_deg=float(np.hypot(*(sb.rest - sa.rest))),
+            return_last_s=sb.return_s, rest_shift_deg=moved,
             noise_deg=max(sa.noise_deg, sb.noise_deg), threshold_deg=thr, verdict=verdict))
     if not out:
         return None
