@@ -70,6 +70,28 @@ def test_a_moved_rest_reading_or_a_short_span_decides_nothing():
     assert "at least 50 %" in short.why
 
 
+def test_a_warmer_start_is_measured_and_said():
+    """The springs' start temperature (measured T1..T3 before the first relay) of the last
+    against the first: reported, and said where the repeat found nothing -- a warmer spring
+    bends further, so a loss may hide under it."""
+    def warm(rec: Recording, start_C: float) -> Recording:
+        T = np.full((rec.t.size, 3), 25.0)
+        T[:, 0] = start_C + 20.0 * (rec.currents_A[:, 0] > 0)
+        T[:, 2] = np.nan  # a sensor not fitted
+        rec.temperatures_C = T
+        return rec
+
+    rc = repeats.check(_session(warm(_rec("rec_01"), 25.3), warm(_rec("rec_10", seed=1), 28.0)))
+    (r,) = rc.repeats
+    assert r.start_warmer_K == pytest.approx(2.7) and rc.fatigue == "not seen"
+    assert "started 2.7 K warmer" in rc.why and "within 1 K of ambient" in rc.why
+    assert "started +2.7 K warmer" in "\n".join(repeats.describe(rc.to_dict()))
+    cold = repeats.check(_session(warm(_rec("rec_01"), 25.3), warm(_rec("rec_10", seed=1), 25.8)))
+    assert cold.repeats[0].start_warmer_K == pytest.approx(0.5) and "warmer" not in cold.why
+    # without temperatures there is nothing to say
+    assert repeats.check(_session(_rec("rec_01"), _rec("rec_10", seed=1))).repeats[0].start_warmer_K is None
+
+
 def test_only_the_same_currents_are_a_repeat():
     assert repeats.check(_session(_rec("rec_01"), _rec("rec_10", supply_A=7.5))) is None
     assert repeats.check(_session(_rec("rec_01"), _rec("rec_10", muscle=2))) is None
@@ -107,6 +129,8 @@ def test_fatigue_on_a_rig_written_apart_from_the_model(tmp_path, effects, expect
     r = rc.repeats[0]
     assert (r.first, r.last) == ("rec_01", "rec_17")
     assert (r.bend_change_deg < -3.0) if effects else (abs(r.bend_change_deg) < 0.2)
+    # the repeat started as cold as the reference did (within REPEAT_START_K): 0.4 K warmer
+    assert r.start_warmer_K is not None and abs(r.start_warmer_K) < 1.0
 
 
 @pytest.fixture(scope="module")

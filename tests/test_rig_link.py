@@ -348,6 +348,32 @@ def test_env_waits_for_the_springs_to_cool_before_an_episode(fw):
         env2.close()
 
 
+def test_env_waits_for_a_colder_start_but_not_forever_on_a_wrong_ambient(fw, monkeypatch):
+    """``start_within_K`` (the ``rig`` protocol's reference and long tails start within 1 K of
+    ambient): thermistors steady at 1.8 K over the ambient the host was given are at rest at
+    once for REST's 3 K, and for the colder start once they have stopped cooling
+    (``plateau_s``) -- a wrong ambient costs a short wait, not ``RigNotAtRest``."""
+    from dataclasses import replace
+    import neck_env.rig.hardware_env as H
+
+    monkeypatch.setattr(H, "REST", replace(H.REST, plateau_s=4.0))
+    fw.therm_adc = [491, 491, 491]  # 26.8 C
+    env = _env(fw, action_mode="relay", thermistors=0b111, ambient_C=25.0, cooldown_s=30.0,
+               remember=False)
+    try:
+        env.reset(seed=0, options={"require_rest": True})
+        loose = env.last_rest
+        env.reset(seed=0, options={"require_rest": True, "start_within_K": 1.0})
+        tight = env.last_rest
+        assert loose.at_rest and tight.at_rest and tight.temperature_source == "thermistor"
+        assert tight.hottest_excess_K == pytest.approx(1.8, abs=0.05)
+        assert loose.waited_s < 4.0 + H.REST.settle_s - 0.5 <= tight.waited_s < 15.0, (loose, tight)
+        with pytest.raises(ValueError, match="start_within_K must be a positive"):
+            env.reset(seed=0, options={"start_within_K": 0})
+    finally:
+        env.close()
+
+
 def test_env_starts_from_where_a_sticking_backbone_holds_the_neck(monkeypatch):
     """Springs cold, the neck 1.5 deg off the session's rest reading and not moving (a backbone
     with stiction holds it: the plant with the catalogue's 0.02 N m of friction stops 0.8 deg

@@ -193,8 +193,9 @@ import numpy as np
 from numba import njit
 
 from neck_env.effects import CATALOGUE, EFFECTS
-from neck_env.experiments import (PROTOCOLS, add_dataset_arguments, dataset_arguments,
-                                  diagnosis_protocol, simulated_wait, truth_path_for)
+from neck_env.experiments import (PROTOCOLS, REST, RestCriterion, add_dataset_arguments,
+                                  dataset_arguments, diagnosis_protocol, simulated_wait,
+                                  truth_path_for)
 from neck_env.recording import write_meta, write_recording
 from neck_env.gap import currents
 
@@ -705,9 +706,11 @@ def simulate_recording(p: RigParams, currents_A: np.ndarray, sample_hz: float = 
 
 def wait_for_rest(p: RigParams, state: np.ndarray, fatigue_state: np.ndarray,
                   effects: Mapping[str, Mapping[str, float]] | None = None,
-                  h_multiplier: float = 1.0, sample_hz: float = 50.0) -> float:
-    """The rig protocol's wait between recordings (``experiments.simulated_wait``), relays off;
-    ``state`` is updated in place; returns the seconds waited."""
+                  h_multiplier: float = 1.0, sample_hz: float = 50.0,
+                  criterion: RestCriterion = REST) -> float:
+    """The rig protocol's wait between recordings (``experiments.simulated_wait``) for the rest
+    ``criterion`` (the next recording's ``rest``), relays off; ``state`` is updated in place;
+    returns the seconds waited."""
     def advance(seconds: float) -> float:
         n = int(round(seconds * sample_hz))
         simulate_recording(p, np.zeros((n, 3)), sample_hz, effects, h_multiplier,
@@ -716,7 +719,7 @@ def wait_for_rest(p: RigParams, state: np.ndarray, fatigue_state: np.ndarray,
 
     # chunks of 1 s and one sample, as since this generator was written (its datasets stay)
     return simulated_wait(advance, lambda: float(np.max(state[0:6])) - p.ambient_C,
-                          (int(round(sample_hz)) + 1) / sample_hz)
+                          (int(round(sample_hz)) + 1) / sample_hz, criterion)
 
 
 # -- calibration --------------------------------------------------------------------------------
@@ -1065,7 +1068,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
             hmul = cc["gain"]
         waited = 0.0
         if starts == "cooled" and i > 0:
-            waited = wait_for_rest(p, state, fatigue, plant_eff, hmul, sample_hz)
+            waited = wait_for_rest(p, state, fatigue, plant_eff, hmul, sample_hz, rec.rest)
             t_cum += waited
         else:
             state = rest_state(p)

@@ -40,21 +40,24 @@ fatigue takes. Anything else is ``undecided`` and leaves it to the model-based t
 Why these tolerances: effect-free rigs of the generator written apart from this model,
 recorded as the rig does (each recording after the wait for rest), repeated the reference
 pulse's bend to within 1 % (0.25 deg at 29 deg). The real firmware on the emulated rig
-(``benchmarks/rig_protocol.py``) bent 2.6 % *more* on the repeat (23.7 -> 24.3 deg): the wait
-ends with the springs up to 3-4 K over ambient (``REST.temperature_K``) while the reference
-starts from a cold neck, and a warmer start transforms sooner. That bias only adds bend, so it
-hides a loss rather than faking one; ``LOSS_REL`` stays above it. The return is the cooling's
+(``benchmarks/rig_protocol.py``) bent 2.6 % *more* on the repeat (23.7 -> 24.3 deg) while the
+wait for rest ended with the springs up to 3-4 K over ambient (``REST.temperature_K``) and the
+reference started from a cold neck: a warmer start transforms sooner. That bias only adds bend,
+so it hides a loss rather than faking one; the ``rig`` protocol now starts its reference and
+long tails within ``experiments.REPEAT_START_K`` of ambient, each pair reports how much warmer
+its last started (``start_warmer_K``, from measured temperatures), and ``LOSS_REL`` stays above
+what is left. The return is the cooling's
 time constant on the springs' hysteresis: the same rig repeats it to a few per cent.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Sequence
 
 import numpy as np
 
+from ..experiments import REPEAT_START_K
 from ..recording import Dataset, Recording
 
 GRID_S = 0.02  # commands compared on this grid (zero-order hold)
@@ -93,6 +96,9 @@ class Repeat:
     noise_deg: float
     threshold_deg: float
     verdict: str
+    # the hottest spring at the last's start minus at the first's (measured T1..T3 before the
+    # first relay closes; None without them): a warmer start transforms sooner and bends further
+    start_warmer_K: float | None = None
 
 
 @dataclass(frozen=True)
@@ -169,6 +175,7 @@ class _Shape:
     tail_s: float  # the common duration after the last relay opens
     rest: np.ndarray
     noise_deg: float
+    start_C: float | None  # the hottest spring before the first relay closes (measured only)
 
 
 def _shape(rec: Recording, dur: float) -> _Shape | None:
@@ -201,8 +208,14 @@ def _shape(rec: Recording, dur: float) -> _Shape | None:
     peak = float(np.nanmax(sm[after]))
     below = np.flatnonzero((t > t_off) & (sm < 0.5 * peak))
     ret = float(t[below[0]] - t_off) if below.size else None
+    start_C = None
+    if rec.temperatures_C is not None:
+        T = np.asarray(rec.temperatures_C, float)[sel][t < t_on]
+        fitted = [T[np.isfinite(T[:, k]), k].mean() for k in range(3) if np.isfinite(T[:, k]).any()]
+        if fitted:
+            start_C = float(max(fitted))
     return _Shape(bend_deg=peak, return_s=ret, tail_s=float(t[-1] - t_off), rest=rest,
-                  noise_deg=noise)
+                  noise_deg=noise, start_C=start_C)
 
 
 def _pair_verdict(a: _Shape, b: _Shape, moved: float) -> tuple[str, float]:
@@ -266,7 +279,9 @@ def check(ds: Dataset) -> RepeatCheck | None:
             bend_first_deg=sa.bend_deg, bend_last_deg=sb.bend_deg,
             bend_change_deg=sb.bend_deg - sa.bend_deg, return_first_s=sa.return_s,
             return_last_s=sb.return_s, rest_shift_deg=moved,
-            noise_deg=max(sa.noise_deg, sb.noise_deg), threshold_deg=thr, verdict=verdict))
+            noise_deg=max(sa.noise_deg, sb.noise_deg), threshold_deg=thr, verdict=verdict,
+            start_warmer_K=(None if sa.start_C is None or sb.start_C is None
+                            else sb.start_C - sa.start_C)))
     if not out:
         return None
     # the pair with the most use between them decides: fatigue that a short pair shows, a
@@ -282,13 +297,18 @@ def check(ds: Dataset) -> RepeatCheck | None:
                            f"{r.last} bent the neck {-r.bend_change_deg:.2f} deg less than "
                            f"{r.first} ({r.bend_first_deg:.1f} deg) on the same input, cooling "
                            f"and rest alike: the springs lost actuation with use")
+    warm = ""
+    if r.start_warmer_K is not None and r.start_warmer_K > REPEAT_START_K:
+        warm = (f"; {r.last} started {r.start_warmer_K:.1f} K warmer than {r.first} (a warmer "
+                f"spring transforms sooner and bends further: a loss may hide under it; wait "
+                f"until the springs are within {REPEAT_START_K:g} K of ambient before a repeat)")
     if r.verdict == "unchanged":
         return RepeatCheck(tuple(out), "not seen",
                            f"{r.first} and {r.last}, {100 * r.span:.0f} % of the session "
                            f"apart, bent the neck alike on the same input "
                            f"({r.bend_change_deg:+.2f} deg of {r.bend_first_deg:.1f}): no "
-                           f"actuation lost with use at this input")
-    return RepeatCheck(tuple(out), "undecided", f"{r.first} -> {r.last}: {r.verdict}")
+                           f"actuation lost with use at this input{warm}")
+    return RepeatCheck(tuple(out), "undecided", f"{r.first} -> {r.last}: {r.verdict}{warm}")
 
 
 def describe(rc: dict, indent: str = "") -> list[str]:
@@ -297,9 +317,11 @@ def describe(rc: dict, indent: str = "") -> list[str]:
     for r in rc["repeats"]:
         ret = ("" if r["return_first_s"] is None or r["return_last_s"] is None else
                f", return {r['return_first_s']:.1f} -> {r['return_last_s']:.1f} s")
+        warm = ("" if r.get("start_warmer_K") is None else
+                f", started {r['start_warmer_K']:+.1f} K warmer")
         L.append(f"{indent}  {r['first']} -> {r['last']} ({r['input']}): bend "
                  f"{r['bend_first_deg']:.2f} -> {r['bend_last_deg']:.2f} deg "
                  f"({r['bend_change_deg']:+.2f}, threshold {r['threshold_deg']:.2f}){ret}, rest "
-                 f"moved {r['rest_shift_deg']:.2f} deg: {r['verdict']}")
+                 f"moved {r['rest_shift_deg']:.2f} deg{warm}: {r['verdict']}")
     L.append(f"{indent}  sma_fatigue: {rc['fatigue']} ({rc['why']})")
     return L

@@ -55,8 +55,8 @@ from ..params import NeckParams, default_params
 from ..physics import layout as L
 from ..physics.plant import (constants_from_params, cooling_time_constant_s, initial_state,
                              step_inplace)
-from ..experiments import (add_dataset_arguments, dataset_arguments, protocol_schedule,
-                           simulated_wait, truth_path_for)
+from ..experiments import (REST, RestCriterion, add_dataset_arguments, dataset_arguments,
+                           diagnosis_protocol, simulated_wait, truth_path_for)
 from ..recording import write_meta, write_recording
 from . import currents
 from ..sensors import SensorParams, imu_tilt_series
@@ -187,8 +187,9 @@ def resolve_effects(effects, rng: np.random.Generator,
 STARTS = ("upright", "cooled")
 
 
-def _cooled(consts: np.ndarray, x: np.ndarray, dt: float) -> np.ndarray:
-    """The state after the rig protocol's wait for rest from ``x`` (``simulated_wait``)."""
+def _cooled(consts: np.ndarray, x: np.ndarray, dt: float, criterion: RestCriterion = REST) -> np.ndarray:
+    """The state after the rig protocol's wait for the rest ``criterion`` from ``x``
+    (``simulated_wait``)."""
     x = x.copy()
     left = np.full(1, np.inf)
     o = np.empty((1, L.N_OUT))
@@ -200,7 +201,7 @@ def _cooled(consts: np.ndarray, x: np.ndarray, dt: float) -> np.ndarray:
         step_inplace(consts, x, off, dt, n, left, o)
         return n * dt
 
-    simulated_wait(advance, lambda: float(np.max(x[0, L.S_T:L.S_T + 3] - amb)))
+    simulated_wait(advance, lambda: float(np.max(x[0, L.S_T:L.S_T + 3] - amb)), criterion=criterion)
     return x
 
 
@@ -250,7 +251,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         sensors = SensorParams()
         if hard:
             sensors = SensorParams(**{k: 1.5 * v for k, v in sensors.__dict__.items()})
-    schedule = protocol_schedule(rng, protocol, n_recordings, duration_s, sample_hz)
+    recs = diagnosis_protocol(rng, protocol, n_recordings, duration_s)
 
     consts = constants_from_params(params)
     consts = fx.apply_to_constants(consts, {k: v for k, v in eff.items()
@@ -276,9 +277,11 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     fatigue = np.zeros(3)
     t_cum = 0.0
     recs_truth = []
-    width = max(2, len(str(len(schedule))))
-    for r, (desc, cmd) in enumerate(schedule):
-        n = cmd.shape[0]
+    width = max(2, len(str(len(recs))))
+    for r, rec in enumerate(recs):
+        desc = rec.description
+        n = int(round(rec.duration_s * sample_hz)) + 1
+        cmd = rec.currents(np.arange(n) / sample_hz)
         steps = (n - 1) * sub
         # applied currents on the fine grid: zero-order hold of the command, delayed
         fine_t = np.arange(steps) * dt
@@ -287,7 +290,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         applied = np.where((j >= 0)[:, None], cmd[np.clip(j, 0, n - 1)], 0.0)
         rc = consts if t_cum >= draft_onset else consts_before
         if starts == "cooled" and r > 0:
-            x = _cooled(rc, x, dt)
+            x = _cooled(rc, x, dt, rec.rest)
         else:
             x = initial_state(rc)
             x[0, L.S_FATIGUE:L.S_FATIGUE + 3] = fatigue

@@ -162,8 +162,8 @@ import numpy as np
 from numba import njit
 
 from neck_env.effects import CATALOGUE, EFFECTS
-from neck_env.experiments import (add_dataset_arguments, dataset_arguments, diagnosis_protocol,
-                                  simulated_wait, truth_path_for)
+from neck_env.experiments import (REST, RestCriterion, add_dataset_arguments, dataset_arguments,
+                                  diagnosis_protocol, simulated_wait, truth_path_for)
 from neck_env.recording import write_meta, write_recording
 from neck_env.gap import currents
 
@@ -752,8 +752,10 @@ def simulate_true(rig: Rig, cmd_fine: np.ndarray, eff: Mapping[str, Mapping[str,
 
 
 def wait_for_rest(rig: Rig, state: np.ndarray, fatigue_cum: np.ndarray,
-                  eff: Mapping[str, Mapping[str, float]] | None = None, t0_s: float = 0.0) -> float:
-    """The rig protocol's wait between recordings (``experiments.simulated_wait``), relays off.
+                  eff: Mapping[str, Mapping[str, float]] | None = None, t0_s: float = 0.0,
+                  criterion: RestCriterion = REST) -> float:
+    """The rig protocol's wait between recordings (``experiments.simulated_wait``) for the rest
+    ``criterion`` (the next recording's ``rest``), relays off.
     ``state`` is updated in place; ``t0_s``: the dataset clock of the recording the wait
     precedes (a draft on from it blows through the wait too; the clock counts recorded time
     only, as the draft's onset and the gyro drift are drawn on it); returns the seconds
@@ -766,7 +768,7 @@ def wait_for_rest(rig: Rig, state: np.ndarray, fatigue_cum: np.ndarray,
         return n * DT_S
 
     return simulated_wait(advance, lambda: float(np.max(state[3 * nq + 6:3 * nq + 12]))
-                          - rig.ambient_C)
+                          - rig.ambient_C, criterion=criterion)
 
 
 def calibrated_rig(ambient_C: float = 25.0, cal: Calibrated = CAL) -> Rig:
@@ -1013,7 +1015,7 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
         cmd_f = rec.currents(t_f - delay) if delay > 0 else rec.currents(t_f)
         waited = 0.0
         if starts == "cooled" and i > 0:
-            waited = wait_for_rest(rig, state, fatigue, eff, t0)
+            waited = wait_for_rest(rig, state, fatigue, eff, t0, rec.rest)
         else:
             state = rest_state(rig)
         R, p, Tw, th_true, ph_true, flowing = simulate_true(rig, cmd_f, eff, t0, fatigue, state)

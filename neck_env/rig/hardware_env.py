@@ -9,6 +9,7 @@ and that time is real: each ``step`` lasts ``dt`` of wall time.
 
 from __future__ import annotations
 
+import collections
 import math
 import threading
 import time
@@ -433,14 +434,19 @@ class HardwareNeckEnv(gym.Env):
         ``record_as`` (file name in ``record_dir`` for this episode's recording),
         ``rest_tilt_deg`` (the tilt vector read at rest: wait until the tilt is back within
         ``REST.tilt_deg`` of it), ``require_rest`` (raise ``RigNotAtRest`` instead of going on
-        when the neck is not at rest after ``cooldown_s``)."""
+        when the neck is not at rest after ``cooldown_s``), ``start_within_K`` (a tighter start
+        than `cooldown_margin_C`: the springs within this of ambient, or no longer cooling --
+        ``RestCriterion.springs_cold``; a protocol's ``Recording.start_within_K``)."""
         super().reset(seed=seed)
         self._check_open()
         self._episode_active = False
         opts = dict(options or {})
-        unknown = set(opts) - {"record_as", "rest_tilt_deg", "require_rest"}
+        unknown = set(opts) - {"record_as", "rest_tilt_deg", "require_rest", "start_within_K"}
         if unknown:
             raise ValueError(f"unknown reset option(s) {sorted(unknown)}")
+        within = opts.get("start_within_K")
+        if within is not None and not (isinstance(within, (int, float)) and within > 0):
+            raise ValueError(f"start_within_K must be a positive number of kelvin, got {within!r}")
         self._record_as = opts.get("record_as")
         try:
             self._close_recording()
@@ -454,7 +460,8 @@ class HardwareNeckEnv(gym.Env):
             self._boots_seen = len(self.link.boots)
             tm = self._wait_telemetry(self._samples, FIRST_SAMPLE_TIMEOUT_S)
             self._check_faults(tm)
-            self._cool_down(opts.get("rest_tilt_deg"), bool(opts.get("require_rest", False)))
+            self._cool_down(opts.get("rest_tilt_deg"), bool(opts.get("require_rest", False)),
+                            within)
             # The simulated env's derivation (its np_random draws the core's seed, whose
             # Generator draws the targets): a seed gives the same targets as NeckTrack-v0.
             g = np.random.default_rng(int(self.np_random.integers(0, 2**63)))
@@ -487,12 +494,17 @@ class HardwareNeckEnv(gym.Env):
             self.estimate.advance(np.zeros(3), now - self._est_clock)
         self._est_clock = now
 
-    def _cool_down(self, rest_tilt_deg=None, require: bool = False) -> None:
+    def _cool_down(self, rest_tilt_deg=None, require: bool = False,
+                   start_within_K: float | None = None) -> None:
         self._catch_up_estimate()
         if self.cooldown_s <= 0:
             self.last_rest = None
             return
-        crit = replace(REST, temperature_K=self.cooldown_margin_C, timeout_s=self.cooldown_s)
+        # the env's margin bounds the start; a recording may ask for a colder one, which a
+        # spring no longer cooling within the margin also meets (the ambient may be off)
+        crit = replace(REST, temperature_K=min(self.cooldown_margin_C,
+                                               start_within_K or self.cooldown_margin_C),
+                       plateau_within_K=self.cooldown_margin_C, timeout_s=self.cooldown_s)
         r = self.wait_for_rest(crit, rest_tilt_deg)
         self.last_rest = r
         if r.stuck and self.say is not None:
@@ -509,7 +521,8 @@ class HardwareNeckEnv(gym.Env):
         """Wait, relays off, until the neck is at rest or ``criterion.timeout_s`` has passed.
 
         At rest: every spring within ``criterion.temperature_K`` of ambient (thermistors where
-        fitted, else the estimate) and the fused IMU tilt within ``criterion.tilt_deg`` of
+        fitted, else the estimate; or no longer cooling: ``RestCriterion.springs_cold``) and
+        the fused IMU tilt within ``criterion.tilt_deg`` of
         ``rest_tilt_deg`` (a tilt vector, deg) -- or, when that is not known, of the tilt at
         the start of the window (a neck still creeping back moves) -- both held for
         ``criterion.settle_s``. Also at rest, ``stuck``: the springs cold and the tilt off
@@ -525,17 +538,26 @@ class HardwareNeckEnv(gym.Env):
         still: list[tuple[float, float]] = []
         last_say = t0
         ambient = self.estimate.ambient_C
+        keep_s = criterion.plateau_s + 2.0  # the history springs_cold looks at
+        seen_t: collections.deque[float] = collections.deque()
+        seen_excess: collections.deque[float] = collections.deque()
         while True:
             now = time.monotonic()
             self._catch_up_estimate()
             T, source = self._temperatures(self._last)
             excess = float(np.max(T - ambient))
+            seen_t.append(now - t0)
+            seen_excess.append(excess)
+            while seen_t[-1] - seen_t[0] > keep_s:
+                seen_t.popleft()
+                seen_excess.popleft()
+            cold = criterion.springs_cold(seen_t, seen_excess)
             with self._lock:
                 tilt = self._tilt
             ref = rest_tilt_deg if rest_tilt_deg is not None else anchor
             off = (math.inf if tilt is None else 0.0 if ref is None
                    else math.hypot(tilt[0] - ref[0], tilt[1] - ref[1]))
-            ok = tilt is not None and excess <= criterion.temperature_K and off <= criterion.tilt_deg
+            ok = tilt is not None and cold and off <= criterion.tilt_deg
             if ok:
                 if held_since is None:
                     held_since, acc = now, []
@@ -547,8 +569,7 @@ class HardwareNeckEnv(gym.Env):
                     return RestResult(True, now - t0, excess, off, mean, source)
             else:
                 held_since, anchor = None, None
-            if (rest_tilt_deg is not None and tilt is not None and not ok
-                    and excess <= criterion.temperature_K):
+            if rest_tilt_deg is not None and tilt is not None and not ok and cold:
                 if still_at is None or math.hypot(tilt[0] - still_at[0],
                                                   tilt[1] - still_at[1]) > criterion.steady_deg:
                     still_since, still_at, still = now, tilt, []
@@ -562,11 +583,12 @@ class HardwareNeckEnv(gym.Env):
                 return RestResult(False, now - t0, excess, off, None, source)
             if self.say is not None and now - last_say >= 15.0:
                 last_say = now
-                what = (f"hottest spring {T.max():.0f} C (rest: <= {ambient + criterion.temperature_K:.0f} C)"
-                        if excess > criterion.temperature_K else "springs at ambient")
+                what = (f"hottest spring {T.max():.1f} C (rest: <= "
+                        f"{ambient + criterion.temperature_K:.1f} C, or no longer cooling)"
+                        if not cold else "springs at ambient")
                 if rest_tilt_deg is not None and off > criterion.tilt_deg:
                     what += f", tilt {off:.1f} deg from the rest reading (rest: <= {criterion.tilt_deg:g})"
-                elif rest_tilt_deg is None and not ok and excess <= criterion.temperature_K:
+                elif rest_tilt_deg is None and not ok and cold:
                     what += ", tilt still moving"
                 elif ok:
                     what += f", tilt at rest: holding {criterion.settle_s:g} s"

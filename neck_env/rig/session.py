@@ -7,8 +7,9 @@ order is recording order: fatigue and drift carry across recordings in that orde
 1. the bench supply is set to the recording's current when it changes: by ``supply_cmd`` (a
    programmable supply), by the user at a prompt, or assumed (``yes``);
 2. the neck comes to rest (``experiments.REST``): springs within ``REST.temperature_K`` of
-   ambient (thermistors, else the host's estimate, which remembers earlier commands on the
-   port) and the tilt within ``REST.tilt_deg`` of the session's rest reading, held
+   ambient -- the recording's ``start_within_K``, 1 K for the ``rig`` protocol's reference and
+   long tails, or no longer cooling -- (thermistors, else the host's estimate, which remembers
+   earlier commands on the port) and the tilt within ``REST.tilt_deg`` of the session's rest reading, held
    ``REST.settle_s``; not at rest after ``REST.timeout_s`` is an error;
 3. the relay schedule runs through ``HardwareNeckEnv`` (relay mode: its safety -- relays off on
    every error, Ctrl-C and close, the firmware's on-time cap checked before anything runs) and
@@ -231,7 +232,8 @@ def run_protocol(link: RigLink, record_dir: str | Path, recordings: Sequence[Rec
                 f" -- waiting for rest first")
             env.reset(seed=0, options={"record_as": f"{r.name}.csv{PARTIAL_SUFFIX}",
                                        "rest_tilt_deg": None if rest is None else tuple(rest),
-                                       "require_rest": True})
+                                       "require_rest": True,
+                                       "start_within_K": r.start_within_K})
             rr = env.last_rest
             res.rested_s += rr.waited_s
             if rest is None:  # the first rest of the session defines its rest reading
@@ -248,6 +250,7 @@ def run_protocol(link: RigLink, record_dir: str | Path, recordings: Sequence[Rec
             final = record_dir / f"{r.name}.csv"
             path.rename(final)
             sess["done"][r.name] = {"file": final.name, "rested_s": round(rr.waited_s, 1),
+                                    "start_excess_K": round(rr.hottest_excess_K, 2),
                                     "finished_unix_s": round(time.time(), 1),
                                     "max_theta_deg": round(max_theta, 2),
                                     "refused_mask": int(refused),
