@@ -100,6 +100,14 @@ def test_only_the_same_currents_are_a_repeat():
     # long cooling tail on muscle 1 repeats its reference pulse), edges a sample apart allowed
     rc = repeats.check(_session(_rec("rec_01"), _rec("rec_10", duration_s=60.0, on=(2.02, 7.02))))
     assert rc is not None and rc.repeats[0].common_s == pytest.approx(30.0)
+    # a schedule started late by a host that fell behind (the emulated rig's first recording:
+    # 0.18 s) is the same input shifted; the same shift with a pulse 0.1 s shorter is not (less
+    # heat bends less), nor a start a second later (another protocol's timing)
+    late_start = repeats.check(_session(_rec("rec_01", on=(2.18, 7.18)), _rec("rec_10", seed=1)))
+    assert late_start is not None and late_start.repeats[0].shift_s == pytest.approx(-0.18)
+    assert late_start.repeats[0].verdict == "unchanged"
+    assert repeats.check(_session(_rec("rec_01", on=(2.18, 7.18)), _rec("rec_10", on=(2.0, 6.9)))) is None
+    assert repeats.check(_session(_rec("rec_01"), _rec("rec_10", on=(3.0, 8.0)))) is None
     # times need only increase: a recording stamped from the session's clock compares alike
     late = _rec("rec_10", bend_deg=28.0, seed=1)
     late.t = late.t + 1234.5

@@ -9,8 +9,10 @@ backbone holding the neck off upright). The ``rig`` protocol opens with a refere
 (muscle 1, 7 A, 5 s) whose input its ``long_cool`` on muscle 1 repeats near the end; any
 other recordings of a dataset with the same input are compared too.
 
-For each group of recordings with the same input, the first against the last, over the
-duration both cover, with the tilt taken as a vector from each recording's own rest reading
+Recordings have the same input when they switch the same relays at the same supply for the same
+times, allowing a common delay of up to ``MAX_SHIFT_S`` (a host that fell behind starts its
+schedule late). For each group of recordings with the same input, the first against the last,
+over the duration both cover, with the tilt taken as a vector from each recording's own rest reading
 (the mean before its first relay closes, so an IMU zero that moved between them does not
 count as bend):
 
@@ -75,6 +77,11 @@ RETURN_TOL = 0.15
 RETURN_MIN_S = 0.5
 REST_FACTOR = 0.5  # of the threshold and the change: a rest reading moved this far is another start
 MIN_SPAN = 0.5  # share of the session's recordings between a pair for "not found"
+# A host that falls behind starts the schedule late (the emulated rig's first recording of a
+# session: 0.18 s): the same input shifted. The bend and return are measured from each one's
+# own relay edges, so a shift changes nothing; the heat put in must not change.
+MAX_SHIFT_S = 0.5
+ON_TIME_TOL_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -99,6 +106,7 @@ class Repeat:
     # the hottest spring at the last's start minus at the first's (measured T1..T3 before the
     # first relay closes; None without them): a warmer start transforms sooner and bends further
     start_warmer_K: float | None = None
+    shift_s: float = 0.0  # the last's relays closed this much later from its first sample
 
 
 @dataclass(frozen=True)
@@ -133,21 +141,44 @@ def _hold(t: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return values[idx]
 
 
-def common_input(a: Recording, b: Recording) -> float | None:
-    """The duration from the start over which ``a`` and ``b`` command the same currents (with
-    relays closing in it and ``MIN_TAIL_S`` of cooling after), or None."""
+def _first_on(rec: Recording) -> float | None:
+    on = np.flatnonzero((np.asarray(rec.currents_A) > ON_A).any(axis=1))
+    return float(_t(rec)[on[0]]) if on.size else None
+
+
+@dataclass(frozen=True)
+class Common:
+    """What two recordings share: the same input over ``duration_s`` of the first's time from
+    its first sample, the second's ``shift_s`` later (its first relay closed that much later)."""
+
+    duration_s: float
+    shift_s: float
+
+
+def common_input(a: Recording, b: Recording) -> Common | None:
+    """Do ``a`` and ``b`` command the same currents -- the same relays at the same supply for
+    the same times, relays closing in it and ``MIN_TAIL_S`` of cooling after -- once their
+    first relays are aligned (up to ``MAX_SHIFT_S`` apart)? Their common part, or None."""
     ta, tb = _t(a), _t(b)
-    dur = min(float(ta[-1]), float(tb[-1]))
+    fa, fb = _first_on(a), _first_on(b)
+    if fa is None or fb is None or abs(fb - fa) > MAX_SHIFT_S:
+        return None
+    shift = fb - fa
+    dur = min(float(ta[-1]), float(tb[-1]) - shift)
     grid = np.arange(0.0, dur, GRID_S)
     if grid.size < 10:
         return None
-    ca, cb = _hold(ta, a.currents_A, grid), _hold(tb, b.currents_A, grid)
-    on = (ca > ON_A) | (cb > ON_A)
-    if not on.any() or dur - grid[on.any(axis=1)].max() < MIN_TAIL_S:
+    ca, cb = _hold(ta, a.currents_A, grid), _hold(tb, b.currents_A, grid + shift)
+    on_a, on_b = ca > ON_A, cb > ON_A
+    if dur - grid[(on_a | on_b).any(axis=1)].max() < MIN_TAIL_S:
         return None
     if (np.abs(ca - cb) > AMPS_TOL).any(axis=1).mean() > EDGE_SHARE:
         return None
-    return dur
+    # the heat put in: every muscle's on-time alike, whatever edges moved (a pulse 4 % shorter
+    # bends less by itself)
+    if np.abs(on_a.sum(axis=0) - on_b.sum(axis=0)).max() * GRID_S > ON_TIME_TOL_S:
+        return None
+    return Common(dur, shift)
 
 
 def _describe(rec: Recording, dur: float) -> str:
@@ -254,21 +285,22 @@ def check(ds: Dataset) -> RepeatCheck | None:
     dataset repeats no input."""
     recs: Sequence[Recording] = ds.recordings
     n = len(recs)
-    # each group: its members, and the duration its first one shares with its latest one
-    groups: list[tuple[list[int], list[float]]] = []
+    # each group: its members, and what its first one shares with each later one
+    groups: list[tuple[list[int], list[Common]]] = []
     for i in range(n):
-        for g, durs in groups:
-            dur = common_input(recs[g[0]], recs[i])
-            if dur is not None:
+        for g, shared in groups:
+            c = common_input(recs[g[0]], recs[i])
+            if c is not None:
                 g.append(i)
-                durs.append(dur)
+                shared.append(c)
                 break
         else:
             groups.append(([i], []))
     out = []
-    for g, durs in (x for x in groups if len(x[0]) > 1):
-        a, b, dur = recs[g[0]], recs[g[-1]], durs[-1]
-        sa, sb = _shape(a, dur), _shape(b, dur)
+    for g, shared in (x for x in groups if len(x[0]) > 1):
+        a, b, c = recs[g[0]], recs[g[-1]], shared[-1]
+        dur = c.duration_s
+        sa, sb = _shape(a, dur), _shape(b, dur + c.shift_s)
         if sa is None or sb is None:
             continue
         moved = float(np.hypot(*(sb.rest - sa.rest)))
@@ -281,7 +313,7 @@ def check(ds: Dataset) -> RepeatCheck | None:
             return_last_s=sb.return_s, rest_shift_deg=moved,
             noise_deg=max(sa.noise_deg, sb.noise_deg), threshold_deg=thr, verdict=verdict,
             start_warmer_K=(None if sa.start_C is None or sb.start_C is None
-                            else sb.start_C - sa.start_C)))
+                            else sb.start_C - sa.start_C), shift_s=round(c.shift_s, 3)))
     if not out:
         return None
     # the pair with the most use between them decides: fatigue that a short pair shows, a

@@ -583,8 +583,11 @@ class HardwareNeckEnv(gym.Env):
                 return RestResult(False, now - t0, excess, off, None, source)
             if self.say is not None and now - last_say >= 15.0:
                 last_say = now
+                plateau = (", or no longer cooling within "
+                           f"{ambient + criterion.plateau_within_K:.1f} C"
+                           if criterion.plateau_within_K > criterion.temperature_K else "")
                 what = (f"hottest spring {T.max():.1f} C (rest: <= "
-                        f"{ambient + criterion.temperature_K:.1f} C, or no longer cooling)"
+                        f"{ambient + criterion.temperature_K:.1f} C{plateau})"
                         if not cold else "springs at ambient")
                 if rest_tilt_deg is not None and off > criterion.tilt_deg:
                     what += f", tilt {off:.1f} deg from the rest reading (rest: <= {criterion.tilt_deg:g})"
