@@ -13,8 +13,9 @@ wall time of the recording session (and how much of it was waiting for rest), th
 ``unexplained``, the held-out gaps before and after the best effect, and any recording
 ``neck-gap`` found not at rest. Real time is the floor: the full ``rig`` protocol is ~10 min of
 recording plus ~1-2 min of cooling after each heated recording (measured on a quiet 2-core
-machine, both cases at once, the 18-recording protocol with its reference pulse: 27.8 min per
-session, 17.8 min of it waiting for rest). Keep the machine otherwise idle: under two more
+machine, both cases at once, the 18-recording protocol with its reference pulse and the
+colder start of its reference and long tails: 28.7 min per session, 18.6 min of it waiting for
+rest). Keep the machine otherwise idle: under two more
 busy processes the rig link timed out (no reply to a command within 0.5 s) and resumed.
 """
 

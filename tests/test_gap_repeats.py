@@ -62,6 +62,13 @@ def test_a_moved_rest_reading_or_a_short_span_decides_nothing():
     # a gyro drift or a backbone holding the neck elsewhere: the starts differ, the bends with them
     moved = repeats.check(_session(_rec("rec_01"), _rec("rec_10", bend_deg=27.0, rest=(3.0, 2.0))))
     assert moved.repeats[0].verdict == "rest moved" and moved.decides() == {}
+    # a start moved by r changes the bend by up to r: a loss of 0.45 deg of 13 from a start
+    # 0.18 deg away (a backbone with stiction, third rig 9203) is 0.27 beyond it, under the
+    # 0.39 a loss needs there
+    nudged = repeats.check(_session(_rec("rec_01", bend_deg=13.0),
+                                    _rec("rec_10", bend_deg=12.55, rest=(0.38, -0.1), seed=1)))
+    assert nudged.repeats[0].verdict == "undecided" and nudged.fatigue == "undecided"
+    assert nudged.repeats[0].bend_change_deg < -nudged.repeats[0].threshold_deg
     # the only repeat one recording apart: little use between them
     recs = [_rec("rec_01", supply_A=5.0, muscle=2), _rec("rec_02"), _rec("rec_03", bend_deg=27.0),
             *[_rec(f"rec_{i:02d}", supply_A=4.0 + 0.5 * i, muscle=1, seed=i) for i in range(4, 9)]]
