@@ -56,9 +56,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-__all__ = ["Recording", "RestCriterion", "REST", "REPEAT_START_K", "PROTOCOLS", "RECORDING_PROTOCOLS",
-           "diagnosis_protocol", "protocol_schedule", "truth_path_for", "add_dataset_arguments",
-           "dataset_arguments"]
+__all__ = ["Recording", "RestCriterion", "REST", "REPEAT_START_K", "PROTOCOLS",
+           "RECORDING_PROTOCOLS", "diagnosis_protocol", "protocol_schedule", "truth_path_for",
+           "add_dataset_arguments", "dataset_arguments"]
 
 RECORDING_PROTOCOLS = ("mixed", "paper", "rig")  # what a rig records (the rig CLI offers these)
 PROTOCOLS = (*RECORDING_PROTOCOLS, "drawn")  # and the generators' check of the timing
