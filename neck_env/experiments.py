@@ -157,6 +157,10 @@ class Recording:
         """The rest this recording must start from (``REST``, with its own temperature)."""
         return replace(REST, temperature_K=self.start_within_K)
 
+    def sample_times(self, sample_hz: float) -> np.ndarray:
+        """The recording's sample times (s) at ``sample_hz``: from 0 to its duration inclusive."""
+        return np.arange(int(round(self.duration_s * sample_hz)) + 1) / sample_hz
+
     def currents(self, t_s: np.ndarray) -> np.ndarray:
         """Commanded currents (n, 3) at times ``t_s`` (A; the supply while a relay is on)."""
         t = np.asarray(t_s, dtype=float)
@@ -360,8 +364,7 @@ def protocol_schedule(rng: np.random.Generator, protocol: str = "mixed", n_recor
     """[(description, commanded currents (n, 3) at the sample times)] in recording order."""
     out = []
     for rec in diagnosis_protocol(rng, protocol, n_recordings, duration_s):
-        n = int(round(rec.duration_s * sample_hz)) + 1
-        out.append((rec.description, rec.currents(np.arange(n) / sample_hz)))
+        out.append((rec.description, rec.currents(rec.sample_times(sample_hz))))
     return out
 
 

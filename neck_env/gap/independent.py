@@ -1059,8 +1059,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     rec_truth = []
     plant_eff = {k: v for k, v in eff.items() if k not in ("imu_misalignment", "gyro_bias_drift")}
     for i, rec in enumerate(recs):
-        n = int(round(rec.duration_s * sample_hz)) + 1
-        t = np.arange(n) / sample_hz
+        t = rec.sample_times(sample_hz)
         cmd = rec.currents(t)
         hmul = 1.0
         cc = eff.get("convection_change")

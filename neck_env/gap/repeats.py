@@ -9,12 +9,12 @@ backbone holding the neck off upright). The ``rig`` protocol opens with a refere
 (muscle 1, 7 A, 5 s) whose input its ``long_cool`` on muscle 1 repeats near the end; any
 other recordings of a dataset with the same input are compared too.
 
-Recordings have the same input when they switch the same relays at the same supply for the same
-times, allowing a common delay of up to ``MAX_SHIFT_S`` (a host that fell behind starts its
-schedule late). For each group of recordings with the same input, the first against the last,
-over the duration both cover, with the tilt taken as a vector from each recording's own rest reading
-(the mean before its first relay closes, so an IMU zero that moved between them does not
-count as bend):
+Recordings have the same input when they switch the same relays at the same supply for the
+same times, allowing a common delay of up to ``MAX_SHIFT_S`` (a host that fell behind starts
+its schedule late). For each group of recordings with the same input, the first against the
+last, over the duration both cover, with the tilt taken as a vector from each recording's own
+rest reading (the mean before its first relay closes, so an IMU zero that moved between them
+does not count as bend):
 
 * **bend**: the largest tilt from rest (0.1 s running mean);
 * **return**: from the last relay opening to the tilt falling to half that bend (the cooling);
@@ -24,8 +24,8 @@ A pair's verdict: ``rest moved`` when the rest reading moved by more than ``REST
 both the threshold below and the bend's change (the bends no longer start alike: a start moved
 by r changes the bend from it by about r at most); ``bend fell`` / ``bend rose`` when the bend
 changed, beyond the rest shift, by more than ``LOSS_REL`` of itself, ``LOSS_MIN_DEG`` and
-``NOISE_FACTOR`` times the readings' sample noise -- but a bend that fell while the return got shorter by more than
-``RETURN_TOL`` is ``cooling faster``: more cooling (a draft) heats the springs less *and*
+``NOISE_FACTOR`` times the readings' sample noise -- but a bend that fell while the return got
+shorter by more than ``RETURN_TOL`` is ``cooling faster``: more cooling (a draft) heats the springs less *and*
 returns them sooner, while lost recoverable strain bends less and returns no sooner (the
 independent rig: drafts of x2 shortened the return by 50-58 %, fatigue lengthened it by 0-26 %);
 ``cooling changed`` for a return that moved with the bend alike; ``unchanged`` within half of
@@ -49,8 +49,8 @@ so it hides a loss rather than faking one; the ``rig`` protocol now starts its r
 long tails within ``experiments.REPEAT_START_K`` of ambient, and the same emulated rigs repeat
 it to +0.6 and +0.8 % (24.11 -> 24.25, 23.73 -> 23.91 deg); each pair reports how much warmer
 its last started (``start_warmer_K``, from measured temperatures). ``LOSS_REL`` stays above
-what is left. The return is the cooling's
-time constant on the springs' hysteresis: the same rig repeats it to a few per cent.
+what is left. The return is the cooling's time constant on the springs' hysteresis: the same
+rig repeats it to a few per cent.
 """
 
 from __future__ import annotations
@@ -243,7 +243,7 @@ def _shape(rec: Recording, dur: float) -> _Shape | None:
     start_C = None
     if rec.temperatures_C is not None:
         T = np.asarray(rec.temperatures_C, float)[sel][t < t_on]
-        fitted = [T[np.isfinite(T[:, k]), k].mean() for k in range(3) if np.isfinite(T[:, k]).any()]
+        fitted = [T[np.isfinite(T[:, m]), m].mean() for m in range(3) if np.isfinite(T[:, m]).any()]
         if fitted:
             start_C = float(max(fitted))
     return _Shape(bend_deg=peak, return_s=ret, tail_s=float(t[-1] - t_off), rest=rest,

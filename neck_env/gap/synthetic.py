@@ -187,7 +187,8 @@ def resolve_effects(effects, rng: np.random.Generator,
 STARTS = ("upright", "cooled")
 
 
-def _cooled(consts: np.ndarray, x: np.ndarray, dt: float, criterion: RestCriterion = REST) -> np.ndarray:
+def _cooled(consts: np.ndarray, x: np.ndarray, dt: float,
+            criterion: RestCriterion = REST) -> np.ndarray:
     """The state after the rig protocol's wait for the rest ``criterion`` from ``x``
     (``simulated_wait``)."""
     x = x.copy()
@@ -201,7 +202,8 @@ def _cooled(consts: np.ndarray, x: np.ndarray, dt: float, criterion: RestCriteri
         step_inplace(consts, x, off, dt, n, left, o)
         return n * dt
 
-    simulated_wait(advance, lambda: float(np.max(x[0, L.S_T:L.S_T + 3] - amb)), criterion=criterion)
+    simulated_wait(advance, lambda: float(np.max(x[0, L.S_T:L.S_T + 3] - amb)),
+                   criterion=criterion)
     return x
 
 
@@ -280,8 +282,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     width = max(2, len(str(len(recs))))
     for r, rec in enumerate(recs):
         desc = rec.description
-        n = int(round(rec.duration_s * sample_hz)) + 1
-        cmd = rec.currents(np.arange(n) / sample_hz)
+        cmd = rec.currents(rec.sample_times(sample_hz))
+        n = cmd.shape[0]
         steps = (n - 1) * sub
         # applied currents on the fine grid: zero-order hold of the command, delayed
         fine_t = np.arange(steps) * dt

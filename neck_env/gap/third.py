@@ -1008,8 +1008,8 @@ def generate(out_dir, effects=None, seed: int = 0, protocol: str = "mixed", n_re
     t0 = 0.0
     rec_truth = []
     for i, rec in enumerate(recs):
-        n_s = int(round(rec.duration_s * sample_hz)) + 1
-        t = np.arange(n_s) / sample_hz
+        t = rec.sample_times(sample_hz)
+        n_s = t.size
         n_f = int(round(t[-1] / DT_S)) + 1
         t_f = np.arange(n_f) * DT_S
         cmd_f = rec.currents(t_f - delay) if delay > 0 else rec.currents(t_f)
