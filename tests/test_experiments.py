@@ -120,7 +120,7 @@ def test_drawn_protocol_varies_the_timing_within_the_rig_limits():
 
 def test_schedule_matches_relays_and_on_time():
     rec = diagnosis_protocol(2, "mixed")[0]
-    t = np.arange(int(rec.duration_s * 50) + 1) / 50
+    t = rec.sample_times(50.0)
     cur = rec.currents(t)
     for k in range(0, len(t), 37):
         on = rec.relays_at(t[k])

@@ -25,9 +25,10 @@ both the threshold below and the bend's change (the bends no longer start alike:
 by r changes the bend from it by about r at most); ``bend fell`` / ``bend rose`` when the bend
 changed, beyond the rest shift, by more than ``LOSS_REL`` of itself, ``LOSS_MIN_DEG`` and
 ``NOISE_FACTOR`` times the readings' sample noise -- but a bend that fell while the return got
-shorter by more than ``RETURN_TOL`` is ``cooling faster``: more cooling (a draft) heats the springs less *and*
-returns them sooner, while lost recoverable strain bends less and returns no sooner (the
-independent rig: drafts of x2 shortened the return by 50-58 %, fatigue lengthened it by 0-26 %);
+shorter by more than ``RETURN_TOL`` is ``cooling faster``: more cooling (a draft) heats the
+springs less *and* returns them sooner, while lost recoverable strain bends less and returns no
+sooner (the independent rig: drafts of x2 shortened the return by 50-58 %, fatigue lengthened
+it by 0-26 %);
 ``cooling changed`` for a return that moved with the bend alike; ``unchanged`` within half of
 the threshold; ``undecided`` between, and ``too small`` under ``MIN_BEND_DEG`` of bend.
 

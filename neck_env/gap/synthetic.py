@@ -282,8 +282,9 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     width = max(2, len(str(len(recs))))
     for r, rec in enumerate(recs):
         desc = rec.description
-        cmd = rec.currents(rec.sample_times(sample_hz))
-        n = cmd.shape[0]
+        t = rec.sample_times(sample_hz)
+        cmd = rec.currents(t)
+        n = t.size
         steps = (n - 1) * sub
         # applied currents on the fine grid: zero-order hold of the command, delayed
         fine_t = np.arange(steps) * dt
@@ -318,7 +319,6 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         g_noise = rng.normal(0.0, sensors.gyro_noise_dps, (n, 2))
         imu_tilt_series(np.ascontiguousarray(qs), 1.0 / sample_hz, np.ascontiguousarray(mount),
                         abias, gbias, drift_rate * t_cum, drift_rate, a_noise, g_noise, tilt)
-        t = np.arange(n) / sample_hz
         cols = {"t": t, "i1": cmd[:, 0], "i2": cmd[:, 1], "i3": cmd[:, 2],
                 "theta_deg": np.hypot(tilt[:, 0], tilt[:, 1]),
                 "phi_deg": np.mod(np.degrees(np.arctan2(tilt[:, 1], tilt[:, 0])), 360.0)}

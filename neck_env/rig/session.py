@@ -10,8 +10,7 @@ order is recording order: fatigue and drift carry across recordings in that orde
    ambient -- the recording's ``start_within_K``, 1 K for the ``rig`` protocol's reference and
    long tails, or no longer cooling -- (thermistors, else the host's estimate, which remembers
    earlier commands on the port) and the tilt within ``REST.tilt_deg`` of the session's rest
-   reading, held
-   ``REST.settle_s``; not at rest after ``REST.timeout_s`` is an error;
+   reading, held ``REST.settle_s``; not at rest after ``REST.timeout_s`` is an error;
 3. the relay schedule runs through ``HardwareNeckEnv`` (relay mode: its safety -- relays off on
    every error, Ctrl-C and close, the firmware's on-time cap checked before anything runs) and
    is recorded to ``<name>.csv.part``, renamed ``<name>.csv`` only when complete.
