@@ -16,7 +16,8 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    _creep_rebalanced, _draft_rebalanced, _scan_values, draft_onsets,
                                    _regime, choose_holdout, f_crit, fast_power, responsible, rest_moves,
                                    scan_all_starts, significant, structure_reason, warms,
-                                   by_recordings, compare, MIN_H_CHANGE, h_change, unresolved)
+                                   by_recordings, compare, MIN_H_CHANGE, h_change, unresolved,
+                                   pinned)
 from neck_env.gap.fit import Candidate
 from neck_env.effects import apply_to_constants
 from neck_env.gap.model import (EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, Model, Prediction,
@@ -705,6 +706,42 @@ def test_a_convection_change_no_larger_than_a_constant_h_is_inexact_by_is_not_na
     assert unresolved(model, fit(effect="backbone_friction")) == ""
     # not named on any grounds, however significant the held-out tests
     assert responsible(_cmp()) and not responsible(replace(_cmp(), unresolved=why))
+
+
+def test_an_effect_fitted_at_the_edge_of_its_range_is_pinned_and_the_catalogues_rigs_are_not():
+    """``pinned``: an effect's size (the keys of ``EFFECT_OFF``) at the end of its fitted range
+    away from "off" -- the independent rig's supply-limited seed 8909, a friction at 0.06 N m
+    -- and never a value of the catalogue's own range, which the fitted range exceeds."""
+    from neck_env import effects as fx
+    from neck_env.gap.model import EFFECT_OFF
+
+    def fit(effect, **values):
+        c = Candidate(effect, (effect,), list(EFFECT_SPECS[effect]))
+        c.u = c.u_from({f"{effect}.{k}": v for k, v in values.items()})
+        return c
+
+    assert "friction_Nm 0.06" in pinned(fit("backbone_friction", friction_Nm=0.06))
+    assert pinned(fit("backbone_friction", friction_Nm=0.042)) == ""
+    assert pinned(fit("supply_limit", compliance_V=1.5))  # the supply's far end is the low one
+    assert pinned(fit("supply_limit", compliance_V=40.0)) == ""  # off
+    assert pinned(fit("imu_misalignment", yaw_deg=-30.0)) and pinned(fit("imu_misalignment", yaw_deg=30.0))
+    assert pinned(fit("convection_change", gain=0.25)) and pinned(fit("convection_change", gain=4.0))
+    # a time constant or a height at its bound is a shape, not a size
+    assert pinned(fit("backbone_viscoelasticity", stiffness_ratio=1.0, tau_s=10.0)) == ""
+    assert pinned(fit("backbone_viscoelasticity", stiffness_ratio=3.5, tau_s=2.0))
+    # a pair: either member
+    pair = Candidate("p", ("supply_limit", "backbone_friction"),
+                     EFFECT_SPECS["supply_limit"] + EFFECT_SPECS["backbone_friction"])
+    pair.u = pair.u_from({"supply_limit.compliance_V": 3.2, "backbone_friction.friction_Nm": 0.06})
+    assert pinned(pair).startswith("backbone_friction")
+    for name, specs in EFFECT_SPECS.items():
+        for s in specs:
+            param = s.key.split(".", 1)[1]
+            if s.key not in EFFECT_OFF:
+                continue
+            p = fx.EFFECTS[name].params[param]
+            for v in (p.low, p.high):
+                assert pinned(fit(name, **{param: v})) == "", (s.key, v)
 
 
 def test_a_draft_starts_with_fitting_recordings_on_both_sides():
