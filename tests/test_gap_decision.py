@@ -20,8 +20,8 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    pinned)
 from neck_env.gap.fit import Candidate
 from neck_env.effects import apply_to_constants
-from neck_env.gap.model import (EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, Model, Prediction,
-                                nominal_specs, wire_ratios)
+from neck_env.gap.model import (EFFECT_OFF, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, Model,
+                                Prediction, nominal_specs, wire_ratios)
 from neck_env.params import default_params
 from neck_env.physics.layout import K_BEND, VISCO_K
 from neck_env.physics.plant import (HA, HEAT_CAP, LATENT_K, R_A, R_M,
@@ -713,7 +713,6 @@ def test_an_effect_fitted_at_the_edge_of_its_range_is_pinned_and_the_catalogues_
     away from "off" -- the independent rig's supply-limited seed 8909, a friction at 0.06 N m
     -- and never a value of the catalogue's own range, which the fitted range exceeds."""
     from neck_env import effects as fx
-    from neck_env.gap.model import EFFECT_OFF
 
     def fit(effect, **values):
         c = Candidate(effect, (effect,), list(EFFECT_SPECS[effect]))
@@ -736,9 +735,9 @@ def test_an_effect_fitted_at_the_edge_of_its_range_is_pinned_and_the_catalogues_
     assert pinned(pair).startswith("backbone_friction")
     for name, specs in EFFECT_SPECS.items():
         for s in specs:
-            param = s.key.split(".", 1)[1]
             if s.key not in EFFECT_OFF:
                 continue
+            param = s.key.split(".", 1)[1]
             p = fx.EFFECTS[name].params[param]
             for v in (p.low, p.high):
                 assert pinned(fit(name, **{param: v})) == "", (s.key, v)

@@ -581,18 +581,17 @@ def pinned(c: Candidate) -> str:
     fifth wider; a fit that still wants more takes a misfit the effect does not produce."""
     st = c.setting()
     for name in c.effects:
-        for spec in EFFECT_SPECS.get(name, []):
-            if spec.key not in EFFECT_OFF or spec.key not in st:
+        for spec in EFFECT_SPECS[name]:
+            if spec.key not in EFFECT_OFF:
                 continue
             u, off = spec.to_unit(st[spec.key]), spec.to_unit(EFFECT_OFF[spec.key])
-            far = (u if off <= PINNED_UNIT else 1 - u if off >= 1 - PINNED_UNIT
-                   else max(u, 1 - u))  # how near the far bound(s): 1 = on it
-            if far >= 1 - PINNED_UNIT:
-                edge = spec.upper if u > 0.5 else spec.lower
-                return (f"{name}'s fit rests at the edge of its range ({split_key(spec.key)[1]} "
-                        f"{st[spec.key]:.3g}, bound {edge:.3g}) while an effect inside its own "
-                        f"range explains the recordings: it is taking a misfit it does not "
-                        f"produce")
+            # the bounds (in unit coordinates, 0 and 1) that are not "off" itself
+            for edge_u, edge in ((0.0, spec.lower), (1.0, spec.upper)):
+                if abs(off - edge_u) > PINNED_UNIT and abs(u - edge_u) <= PINNED_UNIT:
+                    return (f"{name}'s fit rests at the edge of its range "
+                            f"({split_key(spec.key)[1]} {st[spec.key]:.3g}, bound {edge:.3g}) while an effect inside its "
+                            f"own range explains the recordings: it is taking a misfit it does "
+                            f"not produce")
     return ""
 
 
