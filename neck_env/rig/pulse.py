@@ -15,11 +15,11 @@ to rest within ``REST.timeout_s`` is an error, not a pulse from a bent start.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
-
-from typing import Callable
 
 from ..experiments import REST
 from ..targets import TargetSpec
@@ -81,9 +81,12 @@ def run_pulse(link: RigLink, muscle: int, current_A: float, on_s: float = 5.0,
     rested = env.last_rest.waited_s if env.last_rest is not None else 0.0
     theta, phi, temp = [], [], []
     info: dict = {}
-    for k in range(env.task.episode_steps):
-        # step k covers [k dt, (k+1) dt): on while it starts before on_s
-        _, _, _, _, info = env.step(on if k * env.dt < on_s - 1e-9 else off)
+    t_on = time.monotonic()
+    for _ in range(env.task.episode_steps):
+        # the springs heat in real time: switch off at the step that starts nearest on_s on the
+        # host's clock, so a stalled step (the env stretches the episode rather than sprint)
+        # does not lengthen the pulse by its stall
+        _, _, _, _, info = env.step(on if time.monotonic() - t_on < on_s - env.dt / 2 else off)
         theta.append(info["theta_deg"])
         phi.append(info["phi_deg"])
         temp.append(float(info["temperatures_C"][muscle - 1]))

@@ -54,11 +54,16 @@ def test_cli_pulse_matches_the_simulator(fw_binaries, tmp_path, capsys, monkeypa
     on = rec.i3 > 0
     assert rec.i1.max() == 0 and rec.i2.max() == 0 and rec.i3.max() == pytest.approx(7.0)
     on_s = on.sum() / ds.meta["sample_hz"]  # in the emulator's time (its telemetry)
-    # the host holds the relay 4 s on its own clock: from its first "on" to its first "off"
+    # the host holds the relay 4 s on its own clock: it sends "off" with the first step that
+    # starts past 4 s less half a step, and not before. How late that step starts is the
+    # machine's load (a loaded CI machine stalled a step by 0.18 s), so the test checks the
+    # decision on both sides of the switch, not a wall-clock tolerance
     k_on = next(k for k, (mask, _, _) in enumerate(sent) if mask == 0b100)
     k_off = next(k for k in range(k_on, len(sent)) if sent[k][0] == 0)
     assert all(mask == 0b100 for mask, _, _ in sent[k_on:k_off])
-    assert sent[k_off][1] - sent[k_on][1] == pytest.approx(4.0, abs=0.1)
+    half_step, slack = 0.025, 0.02  # slack: the host's time from its decision to the send
+    assert sent[k_off][1] - sent[k_on][1] >= 4.0 - half_step - slack
+    assert sent[k_off - 1][1] - sent[k_on][1] < 4.0 - half_step + slack
     # and the firmware switches when told: the recorded on-time is the emulated time between
     # the two commands, up to a telemetry period and the serial line's latency
     assert on_s == pytest.approx(sent[k_off][2] - sent[k_on][2], abs=0.05)
@@ -73,7 +78,7 @@ def test_cli_pulse_matches_the_simulator(fw_binaries, tmp_path, capsys, monkeypa
     err = rec.theta_deg - sim
     rms = float(np.sqrt(np.mean(err ** 2)))
     print(f"\nCLI pulse 7 A x 4 s on muscle 3: peak {rec.theta_deg.max():.2f} deg (simulator "
-          f"{sim.max():.2f}), on {on_s:.2f} s at emulator speed {speed:.3f}, RMS difference "
+          f"{sim.max():.2f}), on {on_s:.2f} s (host {sent[k_off][1] - sent[k_on][1]:.3f} s) at emulator speed {speed:.3f}, RMS difference "
           f"{rms:.3f} deg; {out.out.strip().splitlines()[-1]}")
     assert sim.max() > 10.0
     assert rms < 1.0 and abs(rec.theta_deg.max() - sim.max()) < 1.0
