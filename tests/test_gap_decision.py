@@ -17,11 +17,13 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    _regime, choose_holdout, f_crit, fast_power, responsible, rest_moves,
                                    scan_all_starts, significant, structure_reason, warms,
                                    by_recordings, compare, MIN_H_CHANGE, h_change, unresolved,
-                                   pinned)
-from neck_env.gap.fit import Candidate
+                                   pinned, effect_candidate, mechanics_unidentified)
+from neck_env.gap.fit import Candidate, Fitter
 from neck_env.effects import apply_to_constants
 from neck_env.gap.model import (EFFECT_OFF, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, Model,
-                                Prediction, nominal_specs, wire_ratios)
+                                Prediction, nominal_specs, prepare, wire_ratios)
+from neck_env.gap.synthetic import generate
+from neck_env.recording import read_dataset
 from neck_env.params import default_params
 from neck_env.physics.layout import K_BEND, VISCO_K
 from neck_env.physics.plant import (HA, HEAT_CAP, LATENT_K, R_A, R_M,
@@ -741,6 +743,40 @@ def test_an_effect_fitted_at_the_edge_of_its_range_is_pinned_and_the_catalogues_
             p = fx.EFFECTS[name].params[param]
             for v in (p.low, p.high):
                 assert pinned(fit(name, **{param: v})) == "", (s.key, v)
+
+
+def test_an_effect_only_the_tilt_shows_is_not_named_where_the_neck_moves_too_little_to_pin_the_mechanics(tmp_path):
+    """``mechanics_unidentified``: a supply that barely drives the springs (2.5 V through
+    0.3 ohm: the neck moves under 1 deg, above the 0.5 deg under which nothing mechanical is
+    named at all) leaves the backbone's stiffness and the springs' strain to their priors with a
+    friction fitted beside the limit -- the independent rig's 8909, 8934 and 9309, where such a
+    friction was named. On a neck that moves 30 deg they are pinned, and the friction may be
+    named. A thermal effect is judged on its own grounds (no Jacobian), and the candidate is
+    left as it was."""
+    friction = {"backbone_friction.friction_Nm": 0.01}
+    limit = {"supply_limit.compliance_V": 2.5}
+    why = {}
+    for name, effects in (("moves", {}),
+                          ("barely", {"supply_limit": {"compliance_V": 2.5, "wiring_ohm": 0.3}})):
+        generate(tmp_path / name, effects, seed=5, n_recordings=4, duration_s=15.0,
+                 temperatures=True)
+        data = prepare(read_dataset(tmp_path / name))
+        model = Model(data)
+        fitter = Fitter(model, np.ones(data.fit_rec.size, bool))
+        moved = float(np.max(data.meas_theta))
+        assert (moved > 20.0) if name == "moves" else (0.5 < moved < 1.5), (name, moved)
+        fitted = {"backbone_friction": effect_candidate(model, ["backbone_friction"], {}, friction),
+                  "pair": effect_candidate(model, ["supply_limit", "backbone_friction"], {},
+                                           {**friction, **limit} if name == "barely" else friction),
+                  "supply_limit": effect_candidate(model, ["supply_limit"], {}, limit)}
+        why[name] = {k: mechanics_unidentified(fitter, c) for k, c in fitted.items()}
+        assert all(c.J is None and c.r is None for c in fitted.values())
+    assert why["moves"]["backbone_friction"] == "" and why["moves"]["pair"] == ""
+    for k in ("backbone_friction", "pair"):
+        assert why["barely"][k].startswith("with backbone_friction fitted the recordings pin "
+                                           "neither"), why["barely"][k]
+        assert "EI_scale" in why["barely"][k] and "gammaL_scale" in why["barely"][k]
+    assert why["moves"]["supply_limit"] == "" and why["barely"]["supply_limit"] == ""
 
 
 def test_a_draft_starts_with_fitting_recordings_on_both_sides():
