@@ -25,17 +25,18 @@
    (``beats_structure``: by the same test when that discrepancy is itself significant, else by
    the margin), and takes part in its own fit (``acts``: switched off, that fit is worse on the
    fitting recordings by the F test or recording by recording); one only the tilt shows must
-   leave the recordings pinning the backbone or the springs (``mechanics_unidentified``). An effect that builds up over
-   use (``Effect.builds_up``) is also judged on the held-out recordings where its fit has it
-   built up (``judgements``, ``built_up_mask``); a thermal one also on the held-out
-   temperatures when it explains most of them (``explains_temperatures``); which of these
-   named it is the report's ``grounds``. Then a second effect on top of the first (and on top of
-   each responsible single the first does not significantly beat); with none responsible but a
-   large systematic gap, pairs of the best singles; and effects ``ambiguous`` with a baseline
-   shift. Where the recordings carry measured currents (``currents.check``), they settle
-   ``actuation_delay`` and ``supply_limit`` whatever the tilt said (``_with_currents``); where
-   they repeat an input over the session (``repeats.check``: the ``rig`` protocol's reference
-   pulse), a bend lost with use names ``sma_fatigue`` (``_with_repeats``).
+   leave the recordings pinning the backbone or the springs (``mechanics_unidentified``). An
+   effect that builds up over use (``Effect.builds_up``) is also judged on the held-out
+   recordings where its fit has it built up (``judgements``, ``built_up_mask``); a thermal one
+   also on the held-out temperatures when it explains most of them (``explains_temperatures``);
+   which of these named it is the report's ``grounds``. Then a second effect on top of the first
+   (and on top of each responsible single the first does not significantly beat); with none
+   responsible but a large systematic gap, pairs of the best singles; and effects ``ambiguous``
+   with a baseline shift. Where the recordings carry measured currents (``currents.check``),
+   they settle ``actuation_delay`` and ``supply_limit`` whatever the tilt said
+   (``_with_currents``); where they repeat an input over the session (``repeats.check``: the
+   ``rig`` protocol's reference pulse), a bend lost with use names ``sma_fatigue``
+   (``_with_repeats``).
 5. **Conclusion** (``_conclude``): the final model (baseline + verdict) refitted on all
    recordings; parameter uncertainties and identifiability from its Jacobian; localization of
    the nominal and of the remaining residual; ``unexplained`` when a large systematic residual

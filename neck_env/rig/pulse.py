@@ -14,8 +14,8 @@ to rest within ``REST.timeout_s`` is an error, not a pulse from a bent start.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
