@@ -600,9 +600,9 @@ def pinned(c: Candidate) -> str:
             for edge_u, edge in ((0.0, spec.lower), (1.0, spec.upper)):
                 if abs(off - edge_u) > PINNED_UNIT and abs(u - edge_u) <= PINNED_UNIT:
                     return (f"{name}'s fit rests at the edge of its range "
-                            f"({split_key(spec.key)[1]} {st[spec.key]:.3g}, bound {edge:.3g}) while an effect inside its "
-                            f"own range explains the recordings: it is taking a misfit it does "
-                            f"not produce")
+                            f"({split_key(spec.key)[1]} {st[spec.key]:.3g}, bound {edge:.3g}) "
+                            f"while an effect inside its own range explains the recordings: it "
+                            f"is taking a misfit it does not produce")
     return ""
 
 
@@ -1877,17 +1877,12 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         return _Decision(verdict_c=good[0] if good else nominal, pairs=[], pair_cmp={},
                          ambiguous=[])
     sig = [c for c in singles if responsible(single_cmp[c.name])]
-    # an effect pinned at the edge of its range yields to one responsible inside its own
+    # an effect pinned at the edge of its range yields to one responsible inside its own; one
+    # only the tilt shows needs the mechanics pinned (the Jacobian only where not pinned)
     held = {c.name: pinned(c) for c in sig}
     demote = any(not why for why in held.values())
-    if demote:
-        for c in sig:
-            if held[c.name]:
-                single_cmp[c.name] = replace(single_cmp[c.name], unresolved=held[c.name])
-                say(f"  {c.name}: {held[c.name]}")
-        sig = [c for c in sig if not held[c.name]]
     for c in sig:
-        why = mechanics_unidentified(fitter, c)
+        why = (held[c.name] if demote else "") or mechanics_unidentified(fitter, c)
         if why:
             single_cmp[c.name] = replace(single_cmp[c.name], unresolved=why)
             say(f"  {c.name}: {why}")
