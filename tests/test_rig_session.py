@@ -151,3 +151,49 @@ def test_protocol_cli_quick_run_and_supply_command(fw, tmp_path, capsys):
     # the wire as the diagnosis reads it, in SI units
     assert ds.meta["spring_wire_diameter_m"] == pytest.approx(0.0005)
     assert ds.meta["spring_specific_heat_J_kgK"] == 322
+
+
+def test_session_holds_the_relay_plan_on_the_host_clock_through_stalled_steps(fw, tmp_path,
+                                                                              monkeypatch):
+    """A host that stalls (0.3 s before the first command, before the switch-on and inside the
+    pulse) still switches each relay with the step that starts nearest the plan's edge, timed
+    from the recording's first command; counted in steps, the stalls before the edge moved it
+    0.6 s late and the one inside the pulse held the relay on 0.3 s longer."""
+    import time
+
+    from neck_env.rig import protocol as P
+    from neck_env.rig.hardware_env import HardwareNeckEnv
+
+    rec = Recording("rec_01", "pulse", "m1 4 A", 4.0, 2.5, ((0.8, 1.6, (0,)),))
+    sent: list[tuple[int, float]] = []
+    real_send = RigLink.send
+
+    def logged_send(link, msg):
+        if isinstance(msg, P.SetRelays) and steps:  # the episode's commands, not the rest wait's
+            sent.append((msg.mask, time.monotonic()))
+        return real_send(link, msg)
+
+    real_step, steps = HardwareNeckEnv._step, []
+
+    def stalling_step(env, currents_A):
+        if len(steps) in (0, 5, 20):  # before the first command, at 0.25 s, at 1.0 s of plan
+            time.sleep(0.3)
+        steps.append(len(steps))
+        return real_step(env, currents_A)
+
+    monkeypatch.setattr(RigLink, "send", logged_send)
+    monkeypatch.setattr(HardwareNeckEnv, "_step", stalling_step)
+    res, _ = _run(fw, tmp_path / "ds", [""], recs=[rec])
+    assert res.recorded == ["rec_01"]
+    assert sent[0][0] == 0  # the plan's state at 0 s
+    t0 = sent[0][1]
+    k_on = next(k for k in range(len(sent)) if sent[k][0] == 0b001)
+    k_off = next(k for k in range(k_on, len(sent)) if sent[k][0] == 0)
+    assert all(mask == 0b001 for mask, _ in sent[k_on:k_off])
+    half_step, slack = 0.025, 0.02  # slack: the host's time from its decision to the send
+    for k, edge in ((k_on, 0.8), (k_off, 1.6)):
+        assert sent[k][1] - t0 >= edge - half_step - slack, (k, sent[k][1] - t0)
+        assert sent[k - 1][1] - t0 < edge - half_step + slack, (k, sent[k - 1][1] - t0)
+    ds = read_dataset(tmp_path / "ds")
+    # the recording is in the firmware's time: the stalls lengthen it, never shorten it
+    assert ds.recordings[0].t[-1] >= rec.duration_s - 0.1

@@ -28,7 +28,7 @@ from ..targets import target_at, tracking_error_deg
 from ..task import Task, step_info
 from . import protocol as P
 from .errors import RigFirmwareReset, RigNotAtRest
-from .link import RigError, RigLink, RigLinkLost, RigRefused, RigTimeout
+from .link import RigError, RigLink, RigRefused, RigTimeout
 from .memory import RigMemory
 from .thermal_estimate import ThermalEstimate
 
@@ -240,6 +240,7 @@ class HardwareNeckEnv(gym.Env):
         self.say = say
         self.last_rest: RestResult | None = None
         self.command_sent_s: float | None = None  # time.monotonic() as the last step's command went out
+        self.first_command_s: float | None = None  # ... and as this episode's first one did
         self.memory = RigMemory(self.link.port) if remember else None
         self.memory_note = self.memory.restore(self.estimate) if self.memory else ""
         self._est_clock = time.monotonic()
@@ -480,6 +481,7 @@ class HardwareNeckEnv(gym.Env):
                 self._rows = []
                 self._episode_active = True
             self._t_start = time.monotonic()
+            self.first_command_s = None
             obs, info = self._observe(np.zeros(3), tm, refused=0, late=0.0)
         except BaseException as exc:
             self._fail(exc)
@@ -601,6 +603,16 @@ class HardwareNeckEnv(gym.Env):
             self.link.keepalive()
             time.sleep(0.05)
 
+    def schedule_s(self) -> float:
+        """Where a relay schedule in real time stands for the step about to be commanded: the
+        host's time since this episode's first command went out, plus half a step (the step's
+        command goes out nearest that instant); 0 before the first. A schedule read at this
+        time, not at (steps taken) x dt, keeps its edges on the host's clock through a stalled
+        step, which the env absorbs by stretching the episode rather than sprinting."""
+        if self.first_command_s is None:
+            return 0.0
+        return time.monotonic() - self.first_command_s + self.dt / 2
+
     def step(self, action):
         self._check_open()
         if not self._episode_active:
@@ -633,6 +645,8 @@ class HardwareNeckEnv(gym.Env):
             self._exhausted = True
         # host clock as the step's command goes out: what a caller times a relay hold from
         self.command_sent_s = time.monotonic()
+        if self.first_command_s is None:
+            self.first_command_s = self.command_sent_s
         if self.action_mode == "relay":
             mask = int(sum(1 << k for k in range(3) if duty[k] >= 1.0))
             ack = self.link.command(P.SetRelays(mask), retries=0)

@@ -14,7 +14,6 @@ to rest within ``REST.timeout_s`` is an error, not a pulse from a bent start.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -81,16 +80,10 @@ def run_pulse(link: RigLink, muscle: int, current_A: float, on_s: float = 5.0,
     rested = env.last_rest.waited_s if env.last_rest is not None else 0.0
     theta, phi, temp = [], [], []
     info: dict = {}
-    t_on: float | None = None
     for _ in range(env.task.episode_steps):
-        # the springs heat in real time: switch off at the step that starts nearest on_s after
-        # the "on" command went out, on the host's clock, so a stalled step (the env stretches
-        # the episode rather than sprint) does not lengthen the pulse by its stall, nor a slow
-        # first step shorten it
-        hold = t_on is None or time.monotonic() - t_on < on_s - env.dt / 2
-        _, _, _, _, info = env.step(on if hold else off)
-        if t_on is None:
-            t_on = env.command_sent_s
+        # the springs heat in real time: on the host's clock from the "on" command
+        # (``schedule_s``), so neither a stalled step nor a slow first one changes the hold
+        _, _, _, _, info = env.step(on if env.schedule_s() < on_s else off)
         theta.append(info["theta_deg"])
         phi.append(info["phi_deg"])
         temp.append(float(info["temperatures_C"][muscle - 1]))

@@ -12,8 +12,9 @@ order is recording order: fatigue and drift carry across recordings in that orde
    earlier commands on the port) and the tilt within ``REST.tilt_deg`` of the session's rest
    reading, held ``REST.settle_s``; not at rest after ``REST.timeout_s`` is an error;
 3. the relay schedule runs through ``HardwareNeckEnv`` (relay mode: its safety -- relays off on
-   every error, Ctrl-C and close, the firmware's on-time cap checked before anything runs) and
-   is recorded to ``<name>.csv.part``, renamed ``<name>.csv`` only when complete.
+   every error, Ctrl-C and close, the firmware's on-time cap checked before anything runs), its
+   edges timed on the host's clock from the recording's first command, and is recorded to
+   ``<name>.csv.part``, renamed ``<name>.csv`` only when complete.
 
 Resuming (the same command again): complete recordings are skipped; a ``.part`` file left by an
 interrupted recording is moved to ``DIR/interrupted/`` (kept, never read by ``neck-gap``) and the
@@ -241,8 +242,10 @@ def run_protocol(link: RigLink, record_dir: str | Path, recordings: Sequence[Rec
             _update_meta(record_dir, sess, wire)
             refused = 0
             max_theta = 0.0
-            for k in range(env.task.episode_steps):
-                relays = r.relays_at(k * env.dt)
+            for _ in range(env.task.episode_steps):
+                # the plan on the host's clock (``schedule_s``), not the count of steps: a
+                # stalled step would otherwise hold a relay on, or off, for the stall's length
+                relays = r.relays_at(env.schedule_s())
                 _, _, _, trunc, info = env.step(np.array(relays, dtype=np.int8))
                 refused |= info["refused"]
                 max_theta = max(max_theta, info["theta_deg"])
