@@ -401,6 +401,7 @@ class Comparison:
     # its own fit with the effect switched off against it, on the fitting recordings (pairs:
     # the member whose switching off costs least) -- the baseline it moved to kept (``acts``)
     vs_off: "Comparison | None" = None
+    vs_off_heldout: "Comparison | None" = None  # ... and on the held-out ones
     accepted: bool | None = None  # pairs: accepted into the verdict
     warming: Warming | None = None  # the cold neighbours' temperatures (WARMING_EFFECTS only)
     # every held-out thermistor reading against the reference (``Effect.thermal`` singles, with
@@ -678,17 +679,23 @@ def temperature_evidence(data: Prepared, reference: Prediction, cands: Sequence[
 
 def acts(c: Comparison) -> bool:
     """The effect takes part in its own fit: switched off, the baseline kept where the effect's
-    fit moved it, the fit is worse on the fitting recordings by the F test (``vs_off``).
+    fit moved it, the fit is worse (``switching_off_matters``) on the fitting recordings
+    (``vs_off``) or on the held-out ones (``vs_off_heldout``).
 
     A baseline whose parameters trade against each other along a valley (C_A, EI and A_s on a
     rig far from the defaults) predicts the held-out recordings differently at points that fit
     the fitting ones equally well; an effect's fit can end at another such point than the
     nominal refit did, and be better held out with the effect doing nothing (own wide rig,
     seed 6002, effect-free: a thermal coupling fitted at 0 W/K removed 46 % of the held-out
-    gap). On the fitting recordings, not the held-out ones: an effect may act mostly where the
-    held-out set does not reach (a supply limit on the top currents, which the split keeps in
-    the fitting set) and still improve the held-out gap by freeing the baseline there."""
-    return c.vs_off is None or switching_off_matters(c.vs_off)
+    gap). Switched off there, it leaves that gain where it was. On the fitting recordings too:
+    an effect may act mostly where the held-out set does not reach (a supply limit on the top
+    currents, which the split keeps in the fitting set) and still improve the held-out gap by
+    freeing the baseline there. On the held-out ones too: what the verdict rests on is the
+    held-out gain, and an effect doing it there does not also need the fitting set's test
+    (third rig 9502, an IMU yaw of 3.6 deg fitted at 3.5: switched off, the fitting gap 27 %
+    worse over 9 of 10 recordings, F 1.86 against 1.90, the median recording 19 %)."""
+    return c.vs_off is None or any(o is not None and switching_off_matters(o)
+                                   for o in (c.vs_off, c.vs_off_heldout))
 
 
 def switching_off_matters(o: Comparison) -> bool:
@@ -701,8 +708,8 @@ def switching_off_matters(o: Comparison) -> bool:
 
 def off_compare(data: Prepared, off: Prediction, on: Prediction, mask: np.ndarray,
                 name: str) -> Comparison:
-    """``vs_off`` for effect ``name`` on the samples of ``mask`` (the fitting ones): its fit with
-    the effect switched off against the fit, with the cold neighbours' temperatures for an
+    """``vs_off`` (``vs_off_heldout``) for effect ``name`` on the samples of ``mask`` (the
+    fitting ones, or the held-out ones): its fit with the effect switched off against the fit, with the cold neighbours' temperatures for an
     effect of ``WARMING_EFFECTS`` (its own evidence: a coupling named on the neighbours'
     warming need not move the tilt)."""
     c = compare(data, off, on, mask)
@@ -1740,6 +1747,8 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
     single_cmp = {c.name: replace(compare_effect(data, nominal.pred, c, hold_mask),
                                   vs_off=off_compare(data, offs[c.name], c.pred, run.fit_mask,
                                                      c.effects[0]),
+                                  vs_off_heldout=off_compare(data, offs[c.name], c.pred,
+                                                             hold_mask, c.effects[0]),
                                   unresolved=unresolved(model, c))
                   for c in singles}
     null_cmp = {c.name: compare(data, nominal.pred, c.pred, hold_mask) for c in nulls}
@@ -2270,14 +2279,19 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         ref = reference(p)
-        members = [off_compare(data, next(offs), p.pred, fitter.mask, n) for n in p.effects]
+        members = []
+        for n in p.effects:
+            off = next(offs)
+            members.append((off_compare(data, off, p.pred, fitter.mask, n),
+                            off_compare(data, off, p.pred, hold_mask, n)))
         # the member that acts least: one that does not act at all, else the smaller change
-        vs_off = min(members, key=lambda o: (switching_off_matters(o), o.gap_before_deg))
+        vs_off, vs_off_heldout = min(members, key=lambda m: (
+            any(switching_off_matters(o) for o in m), m[0].gap_before_deg))
         c = replace(compare_effect(data, ref.pred, p, hold_mask, ref.effects),
                     vs_nominal=compare(data, nominal.pred, p.pred, hold_mask),
                     vs_structure=(compare(data, best_null.pred, p.pred, hold_mask)
                                   if best_null is not None else None),
-                    structure_significant=rival, vs_off=vs_off,
+                    structure_significant=rival, vs_off=vs_off, vs_off_heldout=vs_off_heldout,
                     unresolved=(unresolved(fitter.model, p)
                                 or (pinned(p) if demote_pinned else "")))
         accepted = bool(accept(c)) and acts(c) and not c.unresolved

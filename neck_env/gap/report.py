@@ -184,6 +184,8 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "fitting_gap": _r(s.vs_off.gap_after_deg) if s.vs_off is not None else None,
             "fitting_gap_switched_off": (_r(s.vs_off.gap_before_deg)
                                          if s.vs_off is not None else None),
+            "heldout_gap_switched_off": (_r(s.vs_off_heldout.gap_before_deg)
+                                         if s.vs_off_heldout is not None else None),
             "heldout_theta_rmse_after": _r(g["theta_rmse"]),
             "heldout_phi_rmse_after": _r(g["phi_rmse"]),
             "signature": fx.EFFECTS[c.name].signature,
@@ -212,6 +214,8 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "fitting_gap": _r(s.vs_off.gap_after_deg) if s.vs_off is not None else None,
             "fitting_gap_switched_off": (_r(s.vs_off.gap_before_deg)
                                          if s.vs_off is not None else None),
+            "heldout_gap_switched_off": (_r(s.vs_off_heldout.gap_before_deg)
+                                         if s.vs_off_heldout is not None else None),
             "significant": bool(s.accepted),
             "unresolved": s.unresolved,
             **_warming(s),
