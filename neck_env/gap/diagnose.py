@@ -709,9 +709,9 @@ def switching_off_matters(o: Comparison) -> bool:
 def off_compare(data: Prepared, off: Prediction, on: Prediction, mask: np.ndarray,
                 name: str) -> Comparison:
     """``vs_off`` (``vs_off_heldout``) for effect ``name`` on the samples of ``mask`` (the
-    fitting ones, or the held-out ones): its fit with the effect switched off against the fit, with the cold neighbours' temperatures for an
-    effect of ``WARMING_EFFECTS`` (its own evidence: a coupling named on the neighbours'
-    warming need not move the tilt)."""
+    fitting ones, or the held-out ones): its fit with the effect switched off against the fit,
+    with the cold neighbours' temperatures for an effect of ``WARMING_EFFECTS`` (its own
+    evidence: a coupling named on the neighbours' warming need not move the tilt)."""
     c = compare(data, off, on, mask)
     if name in WARMING_EFFECTS:
         c = replace(c, warming=warming_compare(data, off, on, mask))
