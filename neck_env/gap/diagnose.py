@@ -2279,11 +2279,9 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         ref = reference(p)
-        members = []
-        for n in p.effects:
-            off = next(offs)
-            members.append((off_compare(data, off, p.pred, fitter.mask, n),
-                            off_compare(data, off, p.pred, hold_mask, n)))
+        members = [(off_compare(data, off, p.pred, fitter.mask, n),
+                    off_compare(data, off, p.pred, hold_mask, n))
+                   for n, off in zip(p.effects, offs)]
         # the member that acts least: one that does not act at all, else the smaller change
         vs_off, vs_off_heldout = min(members, key=lambda m: (
             any(switching_off_matters(o) for o in m), m[0].gap_before_deg))

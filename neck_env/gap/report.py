@@ -52,6 +52,16 @@ def _warming(s: "D.Comparison") -> dict:
                                           "samples": w.samples, "warms": bool(D.warms(s))}}
 
 
+def _switched_off(s: D.Comparison) -> dict:
+    """Its fit on the fitting recordings, and that fit with the effect (a pair's weaker member)
+    switched off there and on the held-out recordings (``D.acts``)."""
+    def gap(o: "D.Comparison | None", which: str) -> float | None:
+        return None if o is None else _r(getattr(o, which))
+    return {"fitting_gap": gap(s.vs_off, "gap_after_deg"),
+            "fitting_gap_switched_off": gap(s.vs_off, "gap_before_deg"),
+            "heldout_gap_switched_off": gap(s.vs_off_heldout, "gap_before_deg")}
+
+
 def _on_structure(s: D.Comparison) -> dict:
     o = s.on_structure
     if o is None:
@@ -179,13 +189,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             # fitted on top of that structural discrepancy, where the plain comparison failed
             # (``diagnose.beats_structure``, nested)
             **_on_structure(s),
-            # on the fitting recordings: its fit, and that fit with the effect switched off
-            # (``diagnose.acts``)
-            "fitting_gap": _r(s.vs_off.gap_after_deg) if s.vs_off is not None else None,
-            "fitting_gap_switched_off": (_r(s.vs_off.gap_before_deg)
-                                         if s.vs_off is not None else None),
-            "heldout_gap_switched_off": (_r(s.vs_off_heldout.gap_before_deg)
-                                         if s.vs_off_heldout is not None else None),
+            **_switched_off(s),
             "heldout_theta_rmse_after": _r(g["theta_rmse"]),
             "heldout_phi_rmse_after": _r(g["phi_rmse"]),
             "signature": fx.EFFECTS[c.name].signature,
@@ -209,13 +213,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             # top of the first effect (after a responsible single), else on the baseline
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
-            # on the fitting recordings: the pair's fit, and with the member that matters least
-            # switched off
-            "fitting_gap": _r(s.vs_off.gap_after_deg) if s.vs_off is not None else None,
-            "fitting_gap_switched_off": (_r(s.vs_off.gap_before_deg)
-                                         if s.vs_off is not None else None),
-            "heldout_gap_switched_off": (_r(s.vs_off_heldout.gap_before_deg)
-                                         if s.vs_off_heldout is not None else None),
+            **_switched_off(s),
             "significant": bool(s.accepted),
             "unresolved": s.unresolved,
             **_warming(s),

@@ -239,8 +239,8 @@ class HardwareNeckEnv(gym.Env):
         self.link = link if link is not None else RigLink(port, open_timeout=open_timeout)
         self.say = say
         self.last_rest: RestResult | None = None
-        self.command_sent_s: float | None = None  # time.monotonic() as the last step's command went out
-        self.first_command_s: float | None = None  # ... and as this episode's first one did
+        # time.monotonic() as this episode's first command went out (``schedule_s``)
+        self.first_command_s: float | None = None
         self.memory = RigMemory(self.link.port) if remember else None
         self.memory_note = self.memory.restore(self.estimate) if self.memory else ""
         self._est_clock = time.monotonic()
@@ -643,10 +643,8 @@ class HardwareNeckEnv(gym.Env):
             # relays cannot pass a fraction: hold them off rather than overdraw the last step
             duty[:] = 0.0
             self._exhausted = True
-        # host clock as the step's command goes out: what a caller times a relay hold from
-        self.command_sent_s = time.monotonic()
-        if self.first_command_s is None:
-            self.first_command_s = self.command_sent_s
+        if self.first_command_s is None:  # the host clock a relay schedule is timed from
+            self.first_command_s = time.monotonic()
         if self.action_mode == "relay":
             mask = int(sum(1 << k for k in range(3) if duty[k] >= 1.0))
             ack = self.link.command(P.SetRelays(mask), retries=0)
