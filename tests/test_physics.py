@@ -342,6 +342,36 @@ def test_bends_toward_driven_muscle_and_returns_when_cool(pc):
     assert tr.T_C[-1, 0, 1] < 30.0
 
 
+def test_a_known_added_mass_does_not_tell_a_payload_from_a_softer_backbone(params):
+    """The report's advice on `head_payload` (diagnose.SEPARATE) rests on this: upright, the
+    head's weight is a negative stiffness, so a payload is a softer backbone, and a known mass
+    added on top shifts both explanations alike. Only weighing the head separates them."""
+    from scipy.optimize import minimize_scalar
+    amps = np.array([5.0, 6.0, 7.0, 8.0])
+    cur = pulse_currents(amps, 0, 5.0, 12.0, 0.01)
+
+    def theta(ei_scale, mass_kg, com_m):
+        p = params.replace(backbone__bending_stiffness_Nm2=params.backbone.bending_stiffness_Nm2
+                           * ei_scale)
+        c = constants_from_params([p] * amps.size)
+        c[:, L.PAYLOAD_MG] = mass_kg * 9.80665
+        c[:, L.PAYLOAD_COM] = com_m
+        return simulate(c, cur, 0.01)[0].theta_deg
+
+    def rms(a, b):
+        return float(np.sqrt(np.mean((a - b) ** 2)))
+
+    m0, h0, dm, hd = 0.20, 0.05, 0.10, 0.03  # unknown payload; known mass added, kg and m
+    payload = theta(1.0, m0, h0)
+    fit = minimize_scalar(lambda s: rms(theta(s, 0.0, h0), payload), bounds=(0.3, 1.2),
+                          method="bounded", options={"xatol": 1e-3})
+    assert fit.x < 0.95 and fit.fun < 0.1  # a softer backbone is the payload's bend
+    m1, h1 = m0 + dm, (m0 * h0 + dm * hd) / (m0 + dm)
+    with_mass, softer_with_mass = theta(1.0, m1, h1), theta(fit.x, dm, hd)
+    assert rms(with_mass, payload) > 0.5  # the added mass shows ...
+    assert rms(with_mass, softer_with_mass) < 0.1  # ... and both explanations follow it alike
+
+
 def test_fatigue_is_permanent_set_not_lost_strain(pc):
     """A worn muscle (40 % of its recoverable strain turned into permanent set) rests exactly
     where a fresh one does -- cold, its springs pull as before -- and bends less when hot, by

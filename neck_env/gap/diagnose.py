@@ -150,8 +150,9 @@ AMBIG_WORSE = 0.03  # ... and the held-out gap is no more than 3 % worse than th
 # Which recording separates an effect from the baseline shift that mimics it.
 SEPARATE = {
     "head_payload": "a payload and a softer backbone bend the neck alike (the head's gravity "
-                    "moment grows with the tilt as the elastic moment does): weigh the head, or "
-                    "repeat a few pulses with a known mass added to it",
+                    "moment grows with the tilt as the elastic moment does): weigh the head with "
+                    "all it carries (the paper's weighs 250 g); pulses repeated with a known mass "
+                    "added do not separate them, as a softer backbone mimics that mass too",
     "convection_change": "a draft through every recording is a larger convection coefficient: "
                          "record long cooling tails (the 'rig' protocol's long_cool) with "
                          "thermistors, or repeat a pulse with the suspected draft removed",
