@@ -345,8 +345,11 @@ def test_bends_toward_driven_muscle_and_returns_when_cool(pc):
 def test_a_known_added_mass_does_not_tell_a_payload_from_a_softer_backbone(params):
     """The report's advice on `head_payload` (diagnose.SEPARATE) rests on this: upright, the
     head's weight is a negative stiffness, so a payload is a softer backbone, and a known mass
-    added on top shifts both explanations alike. Only weighing the head separates them."""
+    added on top shifts both explanations alike. Weighing the head separates them (so would a
+    head-down mount, which the model does not take: docs/gap-log.md, session 65)."""
     from scipy.optimize import minimize_scalar
+
+    from neck_env.effects import G_M_S2
     amps = np.array([5.0, 6.0, 7.0, 8.0])
     cur = pulse_currents(amps, 0, 5.0, 12.0, 0.01)
 
@@ -354,7 +357,7 @@ def test_a_known_added_mass_does_not_tell_a_payload_from_a_softer_backbone(param
         p = params.replace(backbone__bending_stiffness_Nm2=params.backbone.bending_stiffness_Nm2
                            * ei_scale)
         c = constants_from_params([p] * amps.size)
-        c[:, L.PAYLOAD_MG] = mass_kg * 9.80665
+        c[:, L.PAYLOAD_MG] = mass_kg * G_M_S2  # as effects.apply_to_constants sets it
         c[:, L.PAYLOAD_COM] = com_m
         return simulate(c, cur, 0.01)[0].theta_deg
 
