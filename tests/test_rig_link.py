@@ -257,25 +257,68 @@ def test_env_energy_from_commanded_on_time_and_budget_cut(fw):
     env = _env(fw, action_mode="relay", energy_budget_J=30.0)
     env.reset(seed=0)
     R = env.estimate.resistance_ohm()[0]  # cold, martensite: ~constant over a few seconds
-    on_steps, info = 0, {}
+    on_steps, late_on_s, info = 0, 0.0, {}
     for _ in range(40):  # 2 s
         _, _, _, _, info = env.step(np.array([1, 0, 0]))
-        on_steps += fw.relays & 1
+        on = fw.relays & 1
+        on_steps += on
+        # a step that ended late held its relay on that much longer: the host cannot cut a
+        # relay while it is stalled, so that energy flows and is charged (the next test)
+        late_on_s += info["late_s"] if on else 0.0
         if info["budget_exhausted"]:
             break
     # 7 A through ~R ohm: 49 R W; the budget is spent after ~30 / (49 R) s and then cut
+    stall_J = 49 * R * late_on_s
     assert info["budget_exhausted"]
-    assert info["energy_J"] == pytest.approx(30.0, abs=49 * R * 0.04)
+    assert -49 * R * 0.04 <= info["energy_J"] - 30.0 <= 49 * R * 0.04 + stall_J
     expect_s = 30.0 / (49 * R)
-    assert abs(on_steps * env.dt - expect_s) < 0.15
+    assert abs(on_steps * env.dt + late_on_s - expect_s) < 0.15
     for _ in range(3):
         _, _, _, _, info = env.step(np.array([1, 0, 0]))
     # relays stay off; in relay mode a last step that would overdraw is not taken at all, so
     # less than one step's energy may remain unspent, and the budget is never overdrawn by
-    # more than one telemetry interval of switching jitter
+    # more than one telemetry interval of switching jitter (and what a stalled host held on)
     assert fw.relays == 0 and info["budget_exhausted"]
     assert 0.0 <= info["energy_left_J"] < 49 * R * env.dt
-    assert info["energy_J"] <= 30.0 + 49 * R * 0.02
+    assert info["energy_J"] <= 30.0 + 49 * R * 0.02 + stall_J
+    env.close()
+
+
+def _relay1_on_s(log, t_end: float) -> float:
+    """Seconds relay 1 was on in a firmware relay log [(monotonic time, mask), ...]."""
+    on_s, since = 0.0, None
+    for t, mask in log:
+        if mask & 1 and since is None:
+            since = t
+        elif not mask & 1 and since is not None:
+            on_s, since = on_s + t - since, None
+    return on_s + (t_end - since if since is not None else 0.0)
+
+
+def test_a_stalled_host_is_charged_what_its_relay_passed_until_the_heartbeat_cut_it(fw):
+    """The host stalls 0.4 s with a relay on. The firmware's heartbeat (firmware/src/config.h,
+    HEARTBEAT_TIMEOUT_MS = 250) switches it off within 0.25 s of the last command, so a stall
+    overdraws a budget by at most that; the step after says how late it was (late_s), and the
+    energy charged follows what the relay passed (the firmware's own log), stall included."""
+    env = _env(fw, action_mode="relay", energy_budget_J=float("inf"))
+    R = env.estimate.resistance_ohm()[0]
+    charged_s, on_s, late_s = [], [], 0.0
+    for stall_at in (None, 6):
+        env.reset(seed=0)
+        n0, info = len(fw.relay_on_log), {}
+        for k in range(12):
+            if k == stall_at:
+                time.sleep(0.4)
+            _, _, _, _, info = env.step(np.array([1, 0, 0]))
+            if k == stall_at:
+                late_s = info["late_s"]
+        on_s.append(_relay1_on_s(fw.relay_on_log[n0:], time.monotonic()))
+        charged_s.append(info["energy_J"] / (49 * R))  # 7 A through ~R ohm
+    assert late_s >= 0.35 and fw.heartbeat_trips >= 1
+    extra_on = on_s[1] - on_s[0]
+    assert 0.1 < extra_on < 0.25 + env.dt  # the relay stayed on into the stall, then was cut
+    # each episode's charge trails its relay by a telemetry frame or two (20 ms each)
+    assert charged_s[1] - charged_s[0] == pytest.approx(extra_on, abs=0.05)
     env.close()
 
 

@@ -146,7 +146,7 @@ class HardwareNeckEnv(gym.Env):
     | condition | result |
     |---|---|
     | `episode_s` elapsed (`episode_s / dt` steps) | `truncated = True` |
-    | the budget is spent | actuation cut, the episode goes on (as in simulation) |
+    | the budget is spent | actuation cut, the episode goes on (as in simulation); it is charged from the relays' telemetry, so a host stalled with a relay on is charged what passed meanwhile and may overdraw by that much: at most the firmware's 250 ms heartbeat, which then cuts the relay |
     | a spring at or above `cutoff_C` | that muscle is held off until it is below (host side, on the observed temperature); with thermistors fitted the firmware cuts at the same `cutoff_C` (sent with `CONFIG`, at most its own maximum of ~167 C) |
     | IMU missing or failing, link lost or silent, firmware rejects a command | relays off, `RigError` raised (`RigRefused`, `RigLinkLost`, `RigTimeout`) |
     | Ctrl-C (`KeyboardInterrupt`) during a step | relays off, recording flushed, re-raised |
