@@ -25,6 +25,8 @@ THERM_OPEN_ADC = 1015  # what HELLO reports: a fitted NTC reading this or above 
 class FakeFirmware:
     """Serve one host connection at a time on ``self.url``; see the module docstring."""
 
+    HEARTBEAT_S = 0.25  # host silence that switches all off (firmware: HEARTBEAT_TIMEOUT_MS)
+
     def __init__(self, protocol_version: int = P.PROTOCOL_VERSION, imu_faults: int = 0,
                  accel: tuple[int, int, int] = (0, 0, 8192), answer: bool = True) -> None:
         self.protocol_version = protocol_version
@@ -193,7 +195,8 @@ class FakeFirmware:
                 now = time.monotonic()
                 with self._lock:
                     self._update_relays()
-                    if self._armed and now - self._last_valid > 0.25 and any(self.modes):
+                    silent_s = now - self._last_valid
+                    if self._armed and silent_s > self.HEARTBEAT_S and any(self.modes):
                         self._all_off()  # the heartbeat watchdog
                         self.heartbeat_trips += 1
                 if self.stream_hz and not self.silent and now >= next_tel:
