@@ -317,8 +317,9 @@ def test_a_stalled_host_is_charged_what_its_relay_passed_until_the_heartbeat_cut
     assert late_s >= 0.35 and fw.heartbeat_trips >= 1
     extra_on = on_s[1] - on_s[0]
     assert 0.1 < extra_on < fw.HEARTBEAT_S + env.dt  # on into the stall, then cut
-    # each episode's charge trails its relay by a telemetry frame or two (20 ms each)
-    assert charged_s[1] - charged_s[0] == pytest.approx(extra_on, abs=0.05)
+    # each episode's charge trails its relay by a telemetry frame or two (20 ms each), up to
+    # four on a loaded machine (at 0.05 s: 2 failures in 18 runs beside three busy processes)
+    assert charged_s[1] - charged_s[0] == pytest.approx(extra_on, abs=0.08)
     env.close()
 
 
