@@ -299,9 +299,11 @@ def summarize(results: list[dict]) -> str:
     okp = [r for r in pairs if top2(r) == set(r["truth"])]
     okpv = [r for r in pairs if outcome(r)[1]]
     if pairs:
-        L.append(f"pairs: both in the top 2 {rate(len(okp), len(pairs))} (target: own >= 70 %, "
-                 f"independent >= 60 %); verdict "
-                 f"exactly the pair {rate(len(okpv), len(pairs))}")
+        # issue 11 scores a pair right when both are in the top 2 *and in the verdict*: the
+        # verdict being exactly the pair; "both in the top 2" alone is the ranking's share
+        L.append(f"pairs: both in the top 2 {rate(len(okp), len(pairs))}; verdict exactly the "
+                 f"pair {rate(len(okpv), len(pairs))} (issue 11's scoring; targets: own >= 70 %, "
+                 f"independent >= 60 %)")
     fp = [r for r in free if not outcome(r)[1]]
     which = ", ".join(f"{r['seed']}: {r['report']['verdict']}" for r in fp)
     L.append(f"effect-free: false positives {rate(len(fp), len(free))} (target <= 10 %)"
