@@ -17,7 +17,8 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    _regime, choose_holdout, f_crit, fast_power, responsible, rest_moves,
                                    scan_all_starts, significant, structure_reason, warms,
                                    by_recordings, compare, MIN_H_CHANGE, h_change, unresolved,
-                                   pinned, effect_candidate, mechanics_unidentified)
+                                   pinned, pinned_alone, by_f_test, grounds, effect_candidate,
+                                   mechanics_unidentified)
 from neck_env.gap.fit import Candidate, Fitter
 from neck_env.effects import apply_to_constants
 from neck_env.gap.model import (EFFECT_OFF, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, Model,
@@ -754,6 +755,38 @@ def test_an_effect_fitted_at_the_edge_of_its_range_is_pinned_and_the_catalogues_
             p = fx.EFFECTS[name].params[param]
             for v in (p.low, p.high):
                 assert pinned(fit(name, **{param: v})) == "", (s.key, v)
+
+
+def test_a_pinned_effect_alone_is_named_on_the_tilt_only_by_the_f_test():
+    """``pinned_alone``: with no effect responsible inside its range, an effect at the edge of
+    its own is named on the tilt by the F test against the nominal refit, not by the routes
+    that ask less of the pooled gap -- the third rig's effect-free seed 10300: a friction at
+    the 0.06 N m bound, 21 % of a 0.97 deg held-out gap, every recording better (block t 3.8),
+    F 1.61 against 2.54 -- and on the thermistors whatever the tilt says."""
+    friction = Candidate("backbone_friction", ("backbone_friction",),
+                         list(EFFECT_SPECS["backbone_friction"]))
+    friction.u = friction.u_from({"backbone_friction.friction_Nm": 0.06})
+    assert pinned(friction)
+    s10300 = _cmp(gap_before_deg=0.968, gap_after_deg=0.762, reduction=0.213,
+                  abs_reduction_deg=0.206, t=3.8, blocks=35, blocks_improved=24, recordings=5,
+                  recordings_improved=5, n_eff=13.3, F=1.61, F_crit=2.54)
+    assert responsible(s10300) and not by_f_test(s10300)  # named before, on the paired route
+    said = pinned_alone(friction, s10300)
+    assert said.startswith("backbone_friction's fit rests at the edge of its range")
+    assert "F 1.61 against 2.54" in said and " while " not in said
+    assert not responsible(replace(s10300, unresolved=said))
+    # the F test passed (an IMU yawed beyond the catalogue: far beyond it), or not pinned
+    strong = replace(s10300, F=3.1, gap_after_deg=0.55, reduction=0.43, abs_reduction_deg=0.42)
+    assert by_f_test(strong) and pinned_alone(friction, strong) == ""
+    inside = Candidate("backbone_friction", ("backbone_friction",),
+                       list(EFFECT_SPECS["backbone_friction"]))
+    inside.u = inside.u_from({"backbone_friction.friction_Nm": 0.042})
+    assert pinned_alone(inside, s10300) == ""
+    # evidence on the thermistors keeps it: an unpowered spring's warming is no structure
+    warmed = replace(s10300, warming=Warming(rms_before_C=0.8, rms_after_C=0.3, reduction=0.625,
+                                             abs_reduction_C=0.5, F=5.0, F_crit=1.3, n_eff=400.0,
+                                             samples=2000))
+    assert "neighbours' warming" in grounds(warmed) and pinned_alone(friction, warmed) == ""
 
 
 def test_an_effect_only_the_tilt_shows_is_not_named_where_the_neck_moves_too_little_to_pin_the_mechanics(tmp_path):
