@@ -778,6 +778,8 @@ def test_a_pinned_effect_alone_is_named_on_the_tilt_only_by_the_f_test():
     # the F test passed (an IMU yawed beyond the catalogue: far beyond it), or not pinned
     strong = replace(s10300, F=3.1, gap_after_deg=0.55, reduction=0.43, abs_reduction_deg=0.42)
     assert by_f_test(strong) and pinned_alone(friction, strong) == ""
+    # an effect that builds up over use: the F test where it has built up is enough
+    assert pinned_alone(friction, replace(s10300, built_up=strong)) == ""
     inside = Candidate("backbone_friction", ("backbone_friction",),
                        list(EFFECT_SPECS["backbone_friction"]))
     inside.u = inside.u_from({"backbone_friction.friction_Nm": 0.042})

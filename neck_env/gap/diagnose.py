@@ -604,16 +604,17 @@ def pinned(c: Candidate) -> str:
 def pinned_alone(c: Candidate, s: Comparison) -> str:
     """Why ``c``, pinned at the edge of its range (``pinned``) with no effect responsible
     inside its own, is still no evidence (empty: it is, or it is not pinned): it is named on
-    the tilt only by the F test against the nominal refit (``by_f_test``), not by the routes
-    that ask less of the pooled gap (every recording improved with the block t; the recordings
-    as the units), or on the thermistors (``s``: its held-out comparison). A fit that wants more
+    the tilt only by the F test against the nominal refit (``by_f_test``, on any of its
+    ``judgements``), not by the routes that ask less of the pooled gap (every recording
+    improved with the block t; the recordings as the units), or on the thermistors (``s``: its
+    held-out comparison). A fit that wants more
     of an effect than any rig of the catalogue has takes a misfit the effect does not produce,
     which is the rig's structure as often as not; an effect far beyond the catalogue shows far
     beyond the test (third rig 10300, effect-free: a friction at the 0.06 N m bound took 21 % of
     a 0.97 deg held-out gap, every held-out recording better, F 1.61 against 2.54, and was
     named)."""
     at = _at_edge(c)
-    if not at or set(grounds(s)) - set(TILT_GROUNDS) or by_f_test(s):
+    if not at or set(grounds(s)) - set(TILT_GROUNDS) or any(map(by_f_test, judgements(s))):
         return ""
     return (f"{at} and no effect explains the recordings inside its own range: alone at the "
             f"edge it needs the F test on the held-out tilt (F {s.F:.2f} against {s.F_crit:.2f})")
@@ -1926,8 +1927,9 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         return _Decision(verdict_c=good[0] if good else nominal, pairs=[], pair_cmp={},
                          ambiguous=[])
     sig = [c for c in singles if responsible(single_cmp[c.name])]
-    # an effect pinned at the edge of its range yields to one responsible inside its own; one
-    # only the tilt shows needs the mechanics pinned (the Jacobian only where not pinned)
+    # an effect pinned at the edge of its range yields to one responsible inside its own, and
+    # alone needs the F test; one only the tilt shows needs the mechanics pinned (the Jacobian
+    # only where not pinned)
     held = {c.name: pinned(c) for c in sig}
     demote = any(not why for why in held.values())
     for c in sig:
