@@ -534,8 +534,7 @@ def grounds(c: Comparison) -> tuple[str, ...]:
     if c.unresolved:
         return ()
     acting, heating = acts(c), heats(c)
-    labels = TILT_GROUNDS
-    out = [label for label, j in zip(labels, judgements(c))
+    out = [label for label, j in zip(TILT_GROUNDS, judgements(c))
            if acting and significant(j) and (beats_structure(j) or heating)]
     if warms(c):
         out.append("neighbours' warming")
@@ -607,10 +606,9 @@ def pinned_alone(c: Candidate, s: Comparison) -> str:
     the tilt only by the F test against the nominal refit (``by_f_test``, on any of its
     ``judgements``), not by the routes that ask less of the pooled gap (every recording
     improved with the block t; the recordings as the units), or on the thermistors (``s``: its
-    held-out comparison). A fit that wants more
-    of an effect than any rig of the catalogue has takes a misfit the effect does not produce,
-    which is the rig's structure as often as not; an effect far beyond the catalogue shows far
-    beyond the test (third rig 10300, effect-free: a friction at the 0.06 N m bound took 21 % of
+    held-out comparison). A fit that wants more of an effect than any rig of the catalogue has
+    takes a misfit the effect does not produce, which is the rig's structure as often as not;
+    an effect far beyond the catalogue shows far beyond the test (third rig 10300, effect-free: a friction at the 0.06 N m bound took 21 % of
     a 0.97 deg held-out gap, every held-out recording better, F 1.61 against 2.54, and was
     named)."""
     at = _at_edge(c)
