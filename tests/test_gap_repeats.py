@@ -178,3 +178,16 @@ def test_the_diagnosis_names_fatigue_the_repeats_show(fatigued_short_session, mo
     # the same recordings without the repeat check: the tilt alone leaves it unnamed
     monkeypatch.setattr(D.repeats, "check", lambda ds: None)
     assert "sma_fatigue" not in D.diagnose(fatigued_short_session).verdict
+
+
+def test_a_draft_where_the_neck_never_returns_to_half_its_bend_is_not_fatigue():
+    # springs partly austenite at ambient: neither recording falls to half its bend in its 23 s
+    # tail, so no return time compares; the share of the bend still held at the end does
+    # (own wide rig 10712: a draft's repeat held 0.85 of it against 0.93, and was called fatigue)
+    slow = dict(return_tau_s=60.0)  # holds exp(-23/60) = 0.68 of its bend at the end
+    draft = repeats.check(_session(_rec("rec_01", **slow),
+                                   _rec("rec_10", bend_deg=28.0, return_tau_s=40.0, seed=1)))
+    assert draft.repeats[0].return_first_s is None and draft.repeats[0].return_last_s is None
+    assert draft.repeats[0].verdict == "cooling faster" and draft.decides() == {}
+    worn = repeats.check(_session(_rec("rec_01", **slow), _rec("rec_10", bend_deg=28.0, seed=1, **slow)))
+    assert worn.fatigue == "found" and worn.decides() == {"sma_fatigue": True}

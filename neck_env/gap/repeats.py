@@ -18,6 +18,8 @@ does not count as bend):
 
 * **bend**: the largest tilt from rest (0.1 s running mean);
 * **return**: from the last relay opening to the tilt falling to half that bend (the cooling);
+* **held**: the share of that bend still held at the end of the common duration (the cooling
+  where the tilt does not fall to half of it there);
 * **rest shift**: how far the rest reading itself moved.
 
 A pair's verdict: ``rest moved`` when the rest reading moved by more than ``REST_FACTOR`` of
@@ -25,10 +27,11 @@ both the threshold below and the bend's change (the bends no longer start alike:
 by r changes the bend from it by about r at most); ``bend fell`` / ``bend rose`` when the bend
 changed, beyond the rest shift, by more than ``LOSS_REL`` of itself, ``LOSS_MIN_DEG`` and
 ``NOISE_FACTOR`` times the readings' sample noise -- but a bend that fell while the return got
-shorter by more than ``RETURN_TOL`` is ``cooling faster``: more cooling (a draft) heats the
-springs less *and* returns them sooner, while lost recoverable strain bends less and returns no
-sooner (the independent rig: drafts of x2 shortened the return by 50-58 %, fatigue lengthened
-it by 0-26 %);
+shorter by more than ``RETURN_TOL``, that held less of itself at the end by more than
+``HELD_TOL``, or whose springs rose less by more than ``HEAT_TOL`` of the first's rise
+(measured temperatures), is ``cooling faster``: more cooling (a draft) heats the springs less *and*
+returns them sooner, while lost recoverable strain bends less and returns no sooner (the
+independent rig: drafts of x2 shortened the return by 50-58 %, fatigue lengthened it by 0-26 %);
 ``cooling changed`` for a return that moved with the bend alike; ``unchanged`` within half of
 the threshold; ``undecided`` between, and ``too small`` under ``MIN_BEND_DEG`` of bend.
 
@@ -77,6 +80,14 @@ LOSS_MIN_DEG = 0.3
 NOISE_FACTOR = 5.0
 RETURN_TOL = 0.15
 RETURN_MIN_S = 0.5
+# the share of the bend held at the end (mean over the last HELD_S): a draft (x1.8-2.5) took
+# 0.08-0.36 of it away (own rig, 12 -> 37 deg bends), fatigue none (-0.005 to +0.08: a worn
+# spring returns no sooner), an effect-free rig +-0.01
+HELD_S = 0.2
+HELD_TOL = 0.05
+# the powered springs' measured rise on the repeat against the first: a draft's 0.58-0.91 of it
+# (third rig, whose quick cooling returns alike), fatigue's 0.97-1.02, an effect-free rig's 0.99-1.01
+HEAT_TOL = 0.07
 REST_FACTOR = 0.5  # of the threshold and the change: a rest reading moved this far is another start
 MIN_SPAN = 0.5  # share of the session's recordings between a pair for "not found"
 # A host that falls behind starts the schedule late (the emulated rig's first recording of a
@@ -209,6 +220,8 @@ class _Shape:
     rest: np.ndarray
     noise_deg: float
     start_C: float | None  # the hottest spring before the first relay closes (measured only)
+    held: float  # the share of the bend still held at the end of the common duration
+    rise_K: float | None  # the powered springs' largest measured rise over their start (None: unmeasured)
 
 
 def _shape(rec: Recording, dur: float) -> _Shape | None:
@@ -241,14 +254,21 @@ def _shape(rec: Recording, dur: float) -> _Shape | None:
     peak = float(np.nanmax(sm[after]))
     below = np.flatnonzero((t > t_off) & (sm < 0.5 * peak))
     ret = float(t[below[0]] - t_off) if below.size else None
-    start_C = None
+    end = np.isfinite(sm) & (t >= t[-1] - HELD_S)
+    held = float(np.mean(sm[end]) / peak) if end.any() and peak > 0 else 1.0
+    start_C = rise = None
     if rec.temperatures_C is not None:
-        T = np.asarray(rec.temperatures_C, float)[sel][t < t_on]
+        T_all = np.asarray(rec.temperatures_C, float)[sel]
+        T = T_all[t < t_on]
         fitted = [T[np.isfinite(T[:, m]), m].mean() for m in range(3) if np.isfinite(T[:, m]).any()]
         if fitted:
             start_C = float(max(fitted))
+        powered = (rec.currents_A[sel] > ON_A).any(axis=0)
+        rises = [np.nanmax(T_all[:, m]) - np.nanmean(T[:, m]) for m in range(3)
+                 if powered[m] and np.isfinite(T[:, m]).any()]
+        rise = float(max(rises)) if rises else None
     return _Shape(bend_deg=peak, return_s=ret, tail_s=float(t[-1] - t_off), rest=rest,
-                  noise_deg=noise, start_C=start_C)
+                  noise_deg=noise, start_C=start_C, held=held, rise_K=rise)
 
 
 def _pair_verdict(a: _Shape, b: _Shape, moved: float) -> tuple[str, float]:
@@ -267,8 +287,16 @@ def _pair_verdict(a: _Shape, b: _Shape, moved: float) -> tuple[str, float]:
     ra = a.return_s if a.return_s is not None else a.tail_s
     rb = b.return_s if b.return_s is not None else b.tail_s
     known = a.return_s is not None or b.return_s is not None
-    faster = known and ra - rb > max(RETURN_MIN_S, RETURN_TOL * ra)
-    slower = known and rb - ra > max(RETURN_MIN_S, RETURN_TOL * ra)
+    # or, where neither got back to half its bend in the common duration (springs that stay
+    # partly austenite at ambient, a short tail), by how much of its bend each still held at
+    # the end: lost strain scales the bend and leaves its shape, more cooling returns more of it
+    # and more cooling heats the springs less, where thermistors read them: lost strain does not
+    heated_less = (a.rise_K is not None and b.rise_K is not None and a.rise_K > 0
+                   and b.rise_K < (1 - HEAT_TOL) * a.rise_K)
+    faster = (known and ra - rb > max(RETURN_MIN_S, RETURN_TOL * ra)
+              or a.held - b.held > HELD_TOL or heated_less)
+    slower = (known and rb - ra > max(RETURN_MIN_S, RETURN_TOL * ra)
+              or b.held - a.held > HELD_TOL)
     # what the moved start cannot account for: it changes the bend by up to its own size (a
     # backbone with stiction starts the neck elsewhere in its dead band: third rig 9203, 0.4
     # deg less bend from a start 0.18 deg away, no fatigue)
