@@ -189,5 +189,6 @@ def test_a_draft_where_the_neck_never_returns_to_half_its_bend_is_not_fatigue():
                                    _rec("rec_10", bend_deg=28.0, return_tau_s=40.0, seed=1)))
     assert draft.repeats[0].return_first_s is None and draft.repeats[0].return_last_s is None
     assert draft.repeats[0].verdict == "cooling faster" and draft.decides() == {}
-    worn = repeats.check(_session(_rec("rec_01", **slow), _rec("rec_10", bend_deg=28.0, seed=1, **slow)))
+    worn = repeats.check(_session(_rec("rec_01", **slow),
+                                  _rec("rec_10", bend_deg=28.0, seed=1, **slow)))
     assert worn.fatigue == "found" and worn.decides() == {"sma_fatigue": True}

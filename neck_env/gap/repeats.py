@@ -258,15 +258,14 @@ def _shape(rec: Recording, dur: float) -> _Shape | None:
     held = float(np.mean(sm[end]) / peak) if end.any() and peak > 0 else 1.0
     start_C = rise = None
     if rec.temperatures_C is not None:
-        T_all = np.asarray(rec.temperatures_C, float)[sel]
-        T = T_all[t < t_on]
-        fitted = [T[np.isfinite(T[:, m]), m].mean() for m in range(3) if np.isfinite(T[:, m]).any()]
-        if fitted:
-            start_C = float(max(fitted))
+        T = np.asarray(rec.temperatures_C, float)[sel]
+        read = [m for m in range(3) if np.isfinite(T[t < t_on, m]).any()]
+        start = {m: float(np.nanmean(T[t < t_on, m])) for m in read}
+        if start:
+            start_C = max(start.values())
         powered = (rec.currents_A[sel] > ON_A).any(axis=0)
-        rises = [np.nanmax(T_all[:, m]) - np.nanmean(T[:, m]) for m in range(3)
-                 if powered[m] and np.isfinite(T[:, m]).any()]
-        rise = float(max(rises)) if rises else None
+        rises = [float(np.nanmax(T[:, m])) - start[m] for m in read if powered[m]]
+        rise = max(rises) if rises else None
     return _Shape(bend_deg=peak, return_s=ret, tail_s=float(t[-1] - t_off), rest=rest,
                   noise_deg=noise, start_C=start_C, held=held, rise_K=rise)
 
@@ -287,10 +286,10 @@ def _pair_verdict(a: _Shape, b: _Shape, moved: float) -> tuple[str, float]:
     ra = a.return_s if a.return_s is not None else a.tail_s
     rb = b.return_s if b.return_s is not None else b.tail_s
     known = a.return_s is not None or b.return_s is not None
-    # or, where neither got back to half its bend in the common duration (springs that stay
-    # partly austenite at ambient, a short tail), by how much of its bend each still held at
-    # the end: lost strain scales the bend and leaves its shape, more cooling returns more of it
-    # and more cooling heats the springs less, where thermistors read them: lost strain does not
+    # where neither got back to half its bend in the common duration (springs that stay partly
+    # austenite at ambient, a short tail), the share of its bend each still held at the end:
+    # lost strain scales the bend and leaves its shape, more cooling returns more of it. And
+    # more cooling heats the springs less, where thermistors read them; lost strain does not
     heated_less = (a.rise_K is not None and b.rise_K is not None and a.rise_K > 0
                    and b.rise_K < (1 - HEAT_TOL) * a.rise_K)
     faster = (known and ra - rb > max(RETURN_MIN_S, RETURN_TOL * ra)
