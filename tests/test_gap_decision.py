@@ -289,6 +289,42 @@ def test_an_effect_that_does_nothing_in_its_own_fit_is_not_named():
     assert not acts(replace(better, vs_off=idle, vs_off_heldout=idle))
 
 
+def test_a_second_effect_is_judged_against_the_first_as_the_pairs_left_it_alone():
+    # own wide rig 10714 (a friction alone): the friction refitted alone left 0.083 deg held
+    # out; its pair with a payload ended at 0 kg with 0.058 deg, and a creep beside the friction
+    # (0.060 deg) "removed 27 %" of the first and was named. Each pair with its other member
+    # switched off is the first effect alone, and the strongest of those is the reference.
+    from neck_env.gap.diagnose import singles_left, strongest
+    rng = np.random.default_rng(3)
+    n, recs = 500, 5
+    t = np.arange(n) / 10.0
+    misfit = np.concatenate([0.3 * np.sin(2 * np.pi * t / 40.0 + r) for r in range(recs)])
+    data = SimpleNamespace(meas_theta=10.0 + misfit + rng.normal(0.0, 0.02, recs * n),
+                           meas_phi=np.zeros(recs * n), fit_rec=np.repeat(np.arange(recs), n),
+                           fit_idx=np.tile(np.arange(n), recs), t=[t] * recs)
+    held = np.ones(recs * n, bool)
+    left = lambda share: Prediction(10.0 + share * misfit, np.zeros(recs * n), None)
+    control = SimpleNamespace(effects=("backbone_friction",), pred=left(0.0))
+    payload = SimpleNamespace(effects=("backbone_friction", "head_payload"), pred=left(0.9))
+    creep = SimpleNamespace(effects=("backbone_friction", "backbone_viscoelasticity"),
+                            pred=left(0.85))
+    # switched off member by member: the payload at 0 kg changes nothing; the creep does
+    offs = [left(0.0), left(0.9), left(0.1), left(0.5)]
+    alone = singles_left([payload, creep], offs)
+    assert set(alone) == {"backbone_friction", "head_payload", "backbone_viscoelasticity"}
+    assert [id(q) for q in alone["backbone_friction"]] == [id(offs[1]), id(offs[3])]
+    assert [id(q) for q in alone["head_payload"]] == [id(offs[0])]
+    ref = strongest(data, held, [control.pred] + alone["backbone_friction"])
+    assert ref is offs[1]
+    # against the friction refitted alone the creep does the work; against the friction the
+    # payload's pair left alone it makes things worse
+    assert responsible(compare(data, control.pred, creep.pred, held))
+    assert not responsible(compare(data, ref, creep.pred, held))
+    # a single reference that is itself the best is kept
+    best = left(0.95)
+    assert strongest(data, held, [best, left(0.5)]) is best
+
+
 def test_a_neighbours_warming_names_coupling_where_the_tilt_alone_cannot():
     # the tilt evidence falls short (a rig's structural misfit dominates its held-out gap) ...
     weak = _cmp(reduction=0.1, gap_after_deg=0.54, abs_reduction_deg=0.06, F=1.2, t=1.5)
