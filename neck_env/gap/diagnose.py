@@ -2322,11 +2322,16 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
                                      for n in p.effects])
     offs = iter(off_list)
     alone = singles_left(pairs, off_list) if reference_from_pairs else {}
+    strongest_ref: dict[int, Prediction] = {}  # by reference: pairs share theirs
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         ref = reference(p)
-        ref_pred = (strongest(data, hold_mask, [ref.pred] + alone.get(ref.effects[0], []))
-                    if len(ref.effects) == 1 else ref.pred)
+        ref_pred = ref.pred
+        if len(ref.effects) == 1 and ref.effects[0] in alone:
+            if id(ref) not in strongest_ref:
+                strongest_ref[id(ref)] = strongest(data, hold_mask,
+                                                   [ref.pred] + alone[ref.effects[0]])
+            ref_pred = strongest_ref[id(ref)]
         members = [(off_compare(data, off, p.pred, fitter.mask, n),
                     off_compare(data, off, p.pred, hold_mask, n))
                    for n, off in zip(p.effects, offs)]
@@ -2350,7 +2355,8 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     return cmp
 
 
-def singles_left(pairs: Sequence[Candidate], offs: Sequence[Prediction]) -> dict[str, list[Prediction]]:
+def singles_left(pairs: Sequence[Candidate],
+                 offs: Sequence[Prediction]) -> dict[str, list[Prediction]]:
     """What each effect alone was left at by the pairs' fits: every pair with its other member
     switched off, by the effect that stays on. ``offs``: the pairs' predictions with each member
     switched off in turn (pair by pair, member by member).
