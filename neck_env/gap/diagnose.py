@@ -2321,17 +2321,14 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     off_list = fitter.model.predict([switched_off(p.setting(), [n]) for p in pairs
                                      for n in p.effects])
     offs = iter(off_list)
-    alone = singles_left(pairs, off_list) if reference_from_pairs else {}
-    strongest_ref: dict[int, Prediction] = {}  # by reference: pairs share theirs
+    # each effect alone as the pairs' fits left it: the best of those held out, once per effect
+    left = ({n: strongest(data, hold_mask, ps) for n, ps in singles_left(pairs, off_list).items()}
+            if reference_from_pairs else {})
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         ref = reference(p)
-        ref_pred = ref.pred
-        if len(ref.effects) == 1 and ref.effects[0] in alone:
-            if id(ref) not in strongest_ref:
-                strongest_ref[id(ref)] = strongest(data, hold_mask,
-                                                   [ref.pred] + alone[ref.effects[0]])
-            ref_pred = strongest_ref[id(ref)]
+        n = ref.effects[0] if len(ref.effects) == 1 else None
+        ref_pred = strongest(data, hold_mask, [ref.pred, left[n]]) if n in left else ref.pred
         members = [(off_compare(data, off, p.pred, fitter.mask, n),
                     off_compare(data, off, p.pred, hold_mask, n))
                    for n, off in zip(p.effects, offs)]
