@@ -18,7 +18,7 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    scan_all_starts, significant, structure_reason, warms,
                                    by_recordings, compare, MIN_H_CHANGE, h_change, unresolved,
                                    pinned, pinned_alone, by_f_test, grounds, effect_candidate,
-                                   mechanics_unidentified)
+                                   mechanics_unidentified, thermistors_disagree, HEAT_BALANCE)
 from neck_env.gap.fit import Candidate, Fitter
 from neck_env.effects import apply_to_constants
 from neck_env.gap.model import (EFFECT_OFF, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, Model,
@@ -825,6 +825,45 @@ def test_a_pinned_effect_alone_is_named_on_the_tilt_only_by_the_f_test():
                                              abs_reduction_C=0.5, F=5.0, F_crit=1.3, n_eff=400.0,
                                              samples=2000))
     assert "neighbours' warming" in grounds(warmed) and pinned_alone(friction, warmed) == ""
+
+
+def test_a_heat_balance_effect_the_thermistors_do_not_see_is_no_evidence():
+    """``thermistors_disagree``: a change of how the springs gain or lose heat, named on the
+    held-out tilt alone, needs their held-out temperatures closer than the nominal refit left
+    them -- the independent rig's effect-free seed 11001: a convection growing 0.0024/K took
+    39 % of a 0.334 deg held-out gap, every recording better, the temperatures 0.810 -> 0.816 C
+    -- while the weakest true one kept (10835, a convection beside a coupling, 11 % of them)
+    and a delay, which the thermistors' own lag hides, stand."""
+    def single(effect):
+        return Candidate(effect, (effect,), list(EFFECT_SPECS[effect]))
+
+    s11001 = _cmp(gap_before_deg=0.334, gap_after_deg=0.205, reduction=0.387,
+                  abs_reduction_deg=0.129, t=6.9, blocks=35, blocks_improved=30, recordings=5,
+                  recordings_improved=5, n_eff=32.0, F=2.65, F_crit=1.80,
+                  temperatures=_warming(rms_before_C=0.810, rms_after_C=0.816, reduction=-0.0074,
+                                        abs_reduction_C=-0.006, F=0.985, F_crit=1.064))
+    assert grounds(s11001) == ("tilt",)
+    said = thermistors_disagree(single("convection_change"), s11001)
+    assert "no closer (0.81 -> 0.82 C, F 0.98)" in said
+    assert not responsible(replace(s11001, unresolved=said))
+    for effect in HEAT_BALANCE:
+        assert thermistors_disagree(single(effect), s11001)
+    # not a heat-balance effect: a delay, a friction
+    assert thermistors_disagree(single("actuation_delay"), s11001) == ""
+    assert thermistors_disagree(single("backbone_friction"), s11001) == ""
+    # the thermistors agree, however little (10835's 11 %, F 1.27 under its 1.48)
+    agree = replace(s11001, temperatures=_warming(rms_before_C=5.26, rms_after_C=4.68,
+                                                  reduction=0.11, abs_reduction_C=0.58, F=1.27,
+                                                  F_crit=1.48))
+    assert thermistors_disagree(single("convection_change"), agree) == ""
+    # no thermistors: nothing to disagree
+    assert thermistors_disagree(single("convection_change"),
+                                replace(s11001, temperatures=None)) == ""
+    # named on the thermistors too (the neighbours' warming): not the tilt alone
+    warmed = replace(s11001, warming=_warming(rms_before_C=0.8, rms_after_C=0.3, reduction=0.625,
+                                              abs_reduction_C=0.5, F=5.0, F_crit=1.3))
+    assert "neighbours' warming" in grounds(warmed)
+    assert thermistors_disagree(single("thermal_coupling"), warmed) == ""
 
 
 def test_an_effect_only_the_tilt_shows_is_not_named_where_the_neck_moves_too_little_to_pin_the_mechanics(tmp_path):

@@ -182,7 +182,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "significant": bool(named_on),
             "grounds": list(named_on),
             "significant_vs_nominal": bool(D.significant_any(s)),
-            # a fit too small to name whatever the tests say (``diagnose.unresolved``)
+            # why its fit is no evidence whatever the tests say (``Comparison.unresolved``)
             "unresolved": s.unresolved,
             "heldout_gap_structure": (_r(s.vs_structure.gap_before_deg)
                                       if s.vs_structure is not None else None),
