@@ -18,7 +18,8 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    scan_all_starts, significant, structure_reason, warms,
                                    by_recordings, compare, MIN_H_CHANGE, h_change, unresolved,
                                    pinned, pinned_alone, by_f_test, grounds, effect_candidate,
-                                   mechanics_unidentified, thermistors_disagree, HEAT_BALANCE)
+                                   mechanics_unidentified, thermistors_disagree, HEAT_BALANCE,
+                                   dead_band_alone)
 from neck_env.gap.fit import Candidate, Fitter
 from neck_env.effects import apply_to_constants
 from neck_env.gap.model import (EFFECT_OFF, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, Model,
@@ -864,6 +865,35 @@ def test_a_heat_balance_effect_the_thermistors_do_not_see_is_no_evidence():
                                               abs_reduction_C=0.5, F=5.0, F_crit=1.3))
     assert "neighbours' warming" in grounds(warmed)
     assert thermistors_disagree(single("thermal_coupling"), warmed) == ""
+
+
+def test_a_friction_alone_is_named_on_the_tilt_only_by_the_f_test():
+    """``dead_band_alone``: a friction named on the held-out tilt only by the routes that ask
+    less of the pooled gap is no evidence -- the independent rig's effect-free seed 11203:
+    0.026 N m, 20 % of a 0.483 deg held-out gap, all five recordings better (median 23 %,
+    t 5.8), F 1.57 against 1.64 -- while one that passes the F test, any other effect on the
+    same evidence, and a friction with evidence beyond the tilt stand."""
+    def single(effect):
+        return Candidate(effect, (effect,), list(EFFECT_SPECS[effect]))
+
+    s11203 = _cmp(gap_before_deg=0.483, gap_after_deg=0.385, reduction=0.203,
+                  abs_reduction_deg=0.098, t=3.4, blocks=35, blocks_improved=27, recordings=5,
+                  recordings_improved=5, n_eff=36.0, F=1.572, F_crit=1.643,
+                  rec_reduction_median=0.23, rec_t=5.8, rec_abs_reduction_median_deg=0.09)
+    assert grounds(s11203) == ("tilt",) and not by_f_test(s11203)
+    said = dead_band_alone(single("backbone_friction"), s11203)
+    assert "F 1.57 against 1.64" in said
+    assert not responsible(replace(s11203, unresolved=said))
+    # another effect on the same evidence: not a dead band
+    for effect in ("backbone_viscoelasticity", "imu_misalignment", "head_payload", "sma_fatigue"):
+        assert dead_band_alone(single(effect), s11203) == ""
+    # the F test passed (own default 1010's friction is named so)
+    strong = replace(s11203, F=2.4, gap_after_deg=0.31, reduction=0.36, abs_reduction_deg=0.17)
+    assert by_f_test(strong) and dead_band_alone(single("backbone_friction"), strong) == ""
+    # evidence beyond the tilt keeps it
+    warmed = replace(s11203, warming=_warming(rms_before_C=0.8, rms_after_C=0.3, reduction=0.625,
+                                              abs_reduction_C=0.5, F=5.0, F_crit=1.3))
+    assert dead_band_alone(single("backbone_friction"), warmed) == ""
 
 
 def test_an_effect_only_the_tilt_shows_is_not_named_where_the_neck_moves_too_little_to_pin_the_mechanics(tmp_path):
