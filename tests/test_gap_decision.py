@@ -240,6 +240,11 @@ def _split(peaks):
     return choose_holdout(SimpleNamespace(recordings=recs))[0]
 
 
+def _single(effect: str) -> Candidate:
+    """A single-effect candidate at its specs' start."""
+    return Candidate(effect, (effect,), list(EFFECT_SPECS[effect]))
+
+
 def _warming(**kw) -> Warming:
     base = dict(rms_before_C=0.9, rms_after_C=0.5, reduction=0.4 / 0.9, abs_reduction_C=0.4,
                 F=3.2, F_crit=1.5, n_eff=150.0, samples=2000)
@@ -835,36 +840,33 @@ def test_a_heat_balance_effect_the_thermistors_do_not_see_is_no_evidence():
     39 % of a 0.334 deg held-out gap, every recording better, the temperatures 0.810 -> 0.816 C
     -- while the weakest true one kept (10835, a convection beside a coupling, 11 % of them)
     and a delay, which the thermistors' own lag hides, stand."""
-    def single(effect):
-        return Candidate(effect, (effect,), list(EFFECT_SPECS[effect]))
-
     s11001 = _cmp(gap_before_deg=0.334, gap_after_deg=0.205, reduction=0.387,
                   abs_reduction_deg=0.129, t=6.9, blocks=35, blocks_improved=30, recordings=5,
                   recordings_improved=5, n_eff=32.0, F=2.65, F_crit=1.80,
                   temperatures=_warming(rms_before_C=0.810, rms_after_C=0.816, reduction=-0.0074,
                                         abs_reduction_C=-0.006, F=0.985, F_crit=1.064))
     assert grounds(s11001) == ("tilt",)
-    said = thermistors_disagree(single("convection_change"), s11001)
+    said = thermistors_disagree(_single("convection_change"), s11001)
     assert "no closer (0.81 -> 0.82 C, F 0.98)" in said
     assert not responsible(replace(s11001, unresolved=said))
     for effect in HEAT_BALANCE:
-        assert thermistors_disagree(single(effect), s11001)
+        assert thermistors_disagree(_single(effect), s11001)
     # not a heat-balance effect: a delay, a friction
-    assert thermistors_disagree(single("actuation_delay"), s11001) == ""
-    assert thermistors_disagree(single("backbone_friction"), s11001) == ""
+    assert thermistors_disagree(_single("actuation_delay"), s11001) == ""
+    assert thermistors_disagree(_single("backbone_friction"), s11001) == ""
     # the thermistors agree, however little (10835's 11 %, F 1.27 under its 1.48)
     agree = replace(s11001, temperatures=_warming(rms_before_C=5.26, rms_after_C=4.68,
                                                   reduction=0.11, abs_reduction_C=0.58, F=1.27,
                                                   F_crit=1.48))
-    assert thermistors_disagree(single("convection_change"), agree) == ""
+    assert thermistors_disagree(_single("convection_change"), agree) == ""
     # no thermistors: nothing to disagree
-    assert thermistors_disagree(single("convection_change"),
+    assert thermistors_disagree(_single("convection_change"),
                                 replace(s11001, temperatures=None)) == ""
     # named on the thermistors too (the neighbours' warming): not the tilt alone
     warmed = replace(s11001, warming=_warming(rms_before_C=0.8, rms_after_C=0.3, reduction=0.625,
                                               abs_reduction_C=0.5, F=5.0, F_crit=1.3))
     assert "neighbours' warming" in grounds(warmed)
-    assert thermistors_disagree(single("thermal_coupling"), warmed) == ""
+    assert thermistors_disagree(_single("thermal_coupling"), warmed) == ""
 
 
 def test_a_friction_alone_is_named_on_the_tilt_only_by_the_f_test():
@@ -873,27 +875,24 @@ def test_a_friction_alone_is_named_on_the_tilt_only_by_the_f_test():
     0.026 N m, 20 % of a 0.483 deg held-out gap, all five recordings better (median 23 %,
     t 5.8), F 1.57 against 1.64 -- while one that passes the F test, any other effect on the
     same evidence, and a friction with evidence beyond the tilt stand."""
-    def single(effect):
-        return Candidate(effect, (effect,), list(EFFECT_SPECS[effect]))
-
     s11203 = _cmp(gap_before_deg=0.483, gap_after_deg=0.385, reduction=0.203,
                   abs_reduction_deg=0.098, t=3.4, blocks=35, blocks_improved=27, recordings=5,
                   recordings_improved=5, n_eff=36.0, F=1.572, F_crit=1.643,
                   rec_reduction_median=0.23, rec_t=5.8, rec_abs_reduction_median_deg=0.09)
     assert grounds(s11203) == ("tilt",) and not by_f_test(s11203)
-    said = dead_band_alone(single("backbone_friction"), s11203)
+    said = dead_band_alone(_single("backbone_friction"), s11203)
     assert "F 1.57 against 1.64" in said
     assert not responsible(replace(s11203, unresolved=said))
     # another effect on the same evidence: not a dead band
     for effect in ("backbone_viscoelasticity", "imu_misalignment", "head_payload", "sma_fatigue"):
-        assert dead_band_alone(single(effect), s11203) == ""
+        assert dead_band_alone(_single(effect), s11203) == ""
     # the F test passed (own default 1010's friction is named so)
     strong = replace(s11203, F=2.4, gap_after_deg=0.31, reduction=0.36, abs_reduction_deg=0.17)
-    assert by_f_test(strong) and dead_band_alone(single("backbone_friction"), strong) == ""
+    assert by_f_test(strong) and dead_band_alone(_single("backbone_friction"), strong) == ""
     # evidence beyond the tilt keeps it
     warmed = replace(s11203, warming=_warming(rms_before_C=0.8, rms_after_C=0.3, reduction=0.625,
                                               abs_reduction_C=0.5, F=5.0, F_crit=1.3))
-    assert dead_band_alone(single("backbone_friction"), warmed) == ""
+    assert dead_band_alone(_single("backbone_friction"), warmed) == ""
 
 
 def test_an_effect_only_the_tilt_shows_is_not_named_where_the_neck_moves_too_little_to_pin_the_mechanics(tmp_path):

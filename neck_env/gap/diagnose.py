@@ -600,6 +600,18 @@ def pinned(c: Candidate) -> str:
             f"a misfit it does not produce") if at else ""
 
 
+def on_tilt_alone(s: Comparison) -> bool:
+    """Its ``grounds`` are the held-out tilt's only (``TILT_GROUNDS``): nothing the
+    thermistors show beside it."""
+    return not set(grounds(s)) - set(TILT_GROUNDS)
+
+
+def short_of_f_test(s: Comparison) -> bool:
+    """Named on the tilt alone (``on_tilt_alone``) and only by the routes that ask less of the
+    pooled gap: no ``judgements`` of it passes the F test (``by_f_test``)."""
+    return on_tilt_alone(s) and not any(map(by_f_test, judgements(s)))
+
+
 # A dead band acts wherever the model's neck moves slowly or little -- every turn and every
 # return of every recording -- which is where a rig built unlike the model leaves its misfit:
 # the catalogue's one generic absorber. Named on the tilt alone it needs the F test.
@@ -616,8 +628,7 @@ def dead_band_alone(c: Candidate, s: Comparison) -> str:
     0.483 deg held-out gap, all five recordings better, F 1.57 against 1.64) and 11007 (a
     payload: 0.014 N m, 16 %, F 1.42 against 1.79) were named so; every true friction named
     alone in the 229 blind reports of 2026-12 passed the F test."""
-    if (not set(c.effects) & set(DEAD_BAND) or set(grounds(s)) - set(TILT_GROUNDS)
-            or any(map(by_f_test, judgements(s)))):
+    if not set(c.effects) & set(DEAD_BAND) or not short_of_f_test(s):
         return ""
     return (f"a friction named on the held-out tilt only by the routes that ask less of the "
             f"pooled gap (F {s.F:.2f} against {s.F_crit:.2f}): a dead band takes a little off "
@@ -636,7 +647,7 @@ def pinned_alone(c: Candidate, s: Comparison) -> str:
     a 0.97 deg held-out gap, every held-out recording better, F 1.61 against 2.54, and was
     named)."""
     at = _at_edge(c)
-    if not at or set(grounds(s)) - set(TILT_GROUNDS) or any(map(by_f_test, judgements(s))):
+    if not at or not short_of_f_test(s):
         return ""
     return (f"{at} and no effect explains the recordings inside its own range: alone at the "
             f"edge it needs the F test on the held-out tilt (F {s.F:.2f} against {s.F_crit:.2f})")
@@ -659,8 +670,7 @@ def thermistors_disagree(c: Candidate, s: Comparison) -> str:
     while the temperatures went 0.810 -> 0.816 C). Every true heat-balance effect named on
     the tilt in the 229 blind reports of 2026-12 left them 11-96 % closer."""
     w = s.temperatures
-    if (w is None or not set(c.effects) & set(HEAT_BALANCE) or w.F > 1.0
-            or set(grounds(s)) - set(TILT_GROUNDS)):
+    if w is None or not set(c.effects) & set(HEAT_BALANCE) or w.F > 1.0 or not on_tilt_alone(s):
         return ""
     return (f"its fit leaves the springs' held-out temperatures no closer ({w.rms_before_C:.2f} "
             f"-> {w.rms_after_C:.2f} C, F {w.F:.2f}), where a change of how they gain or lose "
@@ -1981,10 +1991,9 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
     held = {c.name: pinned(c) for c in sig}
     demote = any(not why for why in held.values())
     for c in sig:
-        why = ((held[c.name] if demote else pinned_alone(c, single_cmp[c.name]))
-               or thermistors_disagree(c, single_cmp[c.name])
-               or dead_band_alone(c, single_cmp[c.name])
-               or mechanics_unidentified(fitter, c))
+        s = single_cmp[c.name]
+        why = ((held[c.name] if demote else pinned_alone(c, s)) or thermistors_disagree(c, s)
+               or dead_band_alone(c, s) or mechanics_unidentified(fitter, c))
         if why:
             single_cmp[c.name] = replace(single_cmp[c.name], unresolved=why)
             say(f"  {c.name}: {why}")
