@@ -608,6 +608,38 @@ def test_the_rest_reading_is_read_before_the_first_command_not_in_a_slow_cooling
     assert np.isnan(rest_offsets(data, pred)[0]).all() and not np.isnan(rest_offsets(data, pred)[1:]).any()
 
 
+def test_the_rest_reading_is_the_settled_one_when_the_tilt_filter_starts_with_each_recording():
+    # another lab's timing: 15 recordings wait 0.5-3.9 s before the first command, and the tilt
+    # filter starts with each recording, so its reading of a steadily drifting gyro bias (0.9 deg
+    # from the first recording to the last) climbs toward it with tau 0.7 s. Read over the whole
+    # wait, the drift is scrambled by how long each recording waited; read just before the
+    # first command it is the steady drift it is.
+    from neck_env.gap.diagnose import rest_drift_stats, rest_offsets
+
+    n, tau_s = 15, 0.7
+    waits = np.random.default_rng(1).uniform(0.5, 3.9, n)
+    settled = np.linspace(0.0, 0.9, n)
+    t = np.arange(0, 30.0, 0.02)
+    ts, cmds, thetas = [], [], []
+    for w, o in zip(waits, settled):
+        cmd = np.zeros((t.size, 3))
+        cmd[t >= w, 0] = 6.0
+        ts.append(t)
+        cmds.append(cmd)
+        thetas.append(np.where(t < w, o * (1 - np.exp(-t / tau_s)), 0.0))
+    data = SimpleNamespace(n_rec=n, t=ts, cmd=cmds, phi=[np.zeros(t.size)] * n, theta=thetas)
+    pred = [{"theta": np.zeros(t.size), "phi": np.zeros(t.size)} for _ in range(n)]
+    ro = rest_offsets(data, pred)
+    # within what the filter has still to go at the first command, never below 51 % settled
+    assert np.allclose(ro[:, 0], settled * (1 - np.exp(-(waits - 0.12) / tau_s)), atol=0.02)
+    spread, drift, r2 = rest_drift_stats(data, pred)[1:]
+    assert r2 > 0.9 and drift > 0.75 and rest_moves(spread, drift, r2)
+    # the whole wait's mean, as the reading was taken before, reads a recording that waited
+    # half a second at a third of its settled value: 0.3 deg and more short of it
+    whole = np.array([np.mean(th[t < w]) for th, w in zip(thetas, waits)])
+    assert np.max(settled - whole) > 0.3 and np.all(ro[:, 0] >= whole - 1e-12)
+
+
 def test_cooling_time_constant_is_the_ratio_of_heat_capacity_to_h_with_correlated_errors():
     specs = nominal_specs(25.0, 1.0)
     keys = [sp.key for sp in specs]
