@@ -4,9 +4,16 @@ history another test, or the user's own rig, left behind."""
 from __future__ import annotations
 
 import importlib.util
+import os
 from pathlib import Path
 
 import pytest
+
+# Under pytest-xdist each worker has a core of its own: numba's threads would only contend with
+# the other worker's (set before anything imports numba; the plant's prange loops run rig by rig,
+# so their results do not depend on the thread count).
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 
 @pytest.fixture(autouse=True)

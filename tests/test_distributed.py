@@ -22,6 +22,9 @@ import pytest
 
 from agents.distributed import LOCAL, LocalCluster, fan_out
 
+# one worker holds this module's Ray clusters (the module-scoped one is started once)
+pytestmark = pytest.mark.xdist_group("ray")
+
 ROOT = Path(__file__).resolve().parents[1]
 HAS_RAY = importlib.util.find_spec("ray") is not None
 requires_ray = pytest.mark.skipif(

@@ -13,6 +13,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+# against the clock (a fake firmware's watchdog and leases): run alone, as the hil tests are
+pytestmark = pytest.mark.realtime
+
 pytest.importorskip("serial")
 
 from fake_firmware import FakeFirmware  # noqa: E402
