@@ -206,8 +206,19 @@ class LocalCluster:
                 "RAY_health_check_failure_threshold": "3", "RAY_health_check_timeout_ms": "500",
                 "RAY_USAGE_STATS_ENABLED": "0"}
 
+    # What ``ray start --temp-dir`` appends for a node's object store socket; a Unix socket's
+    # path holds at most 107 bytes, and Ray only says so once the node fails to start.
+    SOCKET_SUFFIX = "/n00/session_2026-12-06_17-27-55_504394_1234567/sockets/plasma_store"
+    SOCKET_PATH_MAX = 107
+
     def __init__(self, temp_dir: str | Path, start_timeout_s: float = 60.0):
-        self.temp_dir = Path(temp_dir)
+        self.temp_dir = Path(temp_dir).resolve()
+        if len(str(self.temp_dir)) + len(self.SOCKET_SUFFIX) > self.SOCKET_PATH_MAX:
+            raise ValueError(
+                f"temp_dir {self.temp_dir} is {len(str(self.temp_dir))} characters long: the "
+                f"Ray nodes' socket paths under it would exceed the {self.SOCKET_PATH_MAX}-byte "
+                f"limit of a Unix socket; give a directory of at most "
+                f"{self.SOCKET_PATH_MAX - len(self.SOCKET_SUFFIX)} characters (e.g. under /tmp)")
         self.start_timeout_s = start_timeout_s
         self.address: str | None = None
         self.nodes: list[Any] = []  # subprocess.Popen, one per node (None once killed)

@@ -13,9 +13,11 @@ import dataclasses
 import importlib.util
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -109,16 +111,27 @@ def test_sweep_file_errors_name_the_problem(tmp_path):
 # --- on a two-node cluster -----------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory):
+def cluster():
     if not HAS_RAY:
         pytest.skip("Ray is not installed (pip install -e '.[sweep]'; CI installs it)")
-    c = LocalCluster(tmp_path_factory.mktemp("ray"))
+    # a short folder of its own: under pytest-xdist tmp_path grows a worker level, and the
+    # nodes' socket paths under it would pass a Unix socket's 107 bytes
+    temp = tempfile.mkdtemp(prefix="neck-ray-", dir="/tmp" if os.path.isdir("/tmp") else None)
+    c = LocalCluster(temp)
     try:
         c.add_node(num_cpus=1)  # head
         c.add_node(num_cpus=1)
         yield c
     finally:
         c.stop()
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_a_cluster_folder_too_long_for_rays_sockets_is_refused_before_any_node_starts(tmp_path):
+    deep = tmp_path / ("x" * 60)
+    with pytest.raises(ValueError, match="107-byte limit of a Unix socket"):
+        LocalCluster(deep)
+    LocalCluster("/tmp/neck-ray")  # a short one is taken
 
 
 def _run(cmd: list[str], cluster: LocalCluster, timeout: float = 300) -> subprocess.CompletedProcess:
