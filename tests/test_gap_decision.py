@@ -612,8 +612,8 @@ def test_the_rest_reading_is_the_settled_one_when_the_tilt_filter_starts_with_ea
     # another lab's timing: 15 recordings wait 0.5-3.9 s before the first command, and the tilt
     # filter starts with each recording, so its reading of a steadily drifting gyro bias (0.9 deg
     # from the first recording to the last) climbs toward it with tau 0.7 s. Read over the whole
-    # wait, the drift is scrambled by how long each recording waited; read just before the
-    # first command it is the steady drift it is.
+    # wait, each recording reads short by how long it waited; read just before the first
+    # command, the drift is the steady line it is.
     from neck_env.gap.diagnose import rest_drift_stats, rest_offsets
 
     n, tau_s = 15, 0.7
