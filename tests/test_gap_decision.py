@@ -19,7 +19,7 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    by_recordings, compare, MIN_H_CHANGE, h_change, unresolved,
                                    pinned, pinned_alone, by_f_test, grounds, effect_candidate,
                                    mechanics_unidentified, thermistors_disagree, HEAT_BALANCE,
-                                   dead_band_alone)
+                                   absorber_alone)
 from neck_env.gap.fit import Candidate, Fitter
 from neck_env.effects import apply_to_constants
 from neck_env.gap.model import (EFFECT_OFF, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, Model,
@@ -901,30 +901,45 @@ def test_a_heat_balance_effect_the_thermistors_do_not_see_is_no_evidence():
     assert thermistors_disagree(_single("thermal_coupling"), warmed) == ""
 
 
-def test_a_friction_alone_is_named_on_the_tilt_only_by_the_f_test():
-    """``dead_band_alone``: a friction named on the held-out tilt only by the routes that ask
-    less of the pooled gap is no evidence -- the independent rig's effect-free seed 11203:
-    0.026 N m, 20 % of a 0.483 deg held-out gap, all five recordings better (median 23 %,
-    t 5.8), F 1.57 against 1.64 -- while one that passes the F test, any other effect on the
-    same evidence, and a friction with evidence beyond the tilt stand."""
+def test_a_generic_absorber_alone_is_named_on_the_tilt_only_by_the_f_test():
+    """``absorber_alone``: a friction or a convection change named on the held-out tilt only
+    by the routes that ask less of the pooled gap is no evidence -- the independent rig's
+    effect-free seed 11203: a friction of 0.026 N m, 20 % of a 0.483 deg held-out gap, all
+    five recordings better (median 23 %, t 5.8), F 1.57 against 1.64; its friction seed 11510
+    (drawn protocol): h growing 0.0029/K, 25 % of 0.226 deg, F 1.78 against 1.97 -- while one
+    that passes the F test, any other effect on the same evidence, and one with evidence
+    beyond the tilt stand."""
     s11203 = _cmp(gap_before_deg=0.483, gap_after_deg=0.385, reduction=0.203,
                   abs_reduction_deg=0.098, t=3.4, blocks=35, blocks_improved=27, recordings=5,
                   recordings_improved=5, n_eff=36.0, F=1.572, F_crit=1.643,
                   rec_reduction_median=0.23, rec_t=5.8, rec_abs_reduction_median_deg=0.09)
     assert grounds(s11203) == ("tilt",) and not by_f_test(s11203)
-    said = dead_band_alone(_single("backbone_friction"), s11203)
-    assert "F 1.57 against 1.64" in said
+    said = absorber_alone(_single("backbone_friction"), s11203)
+    assert "F 1.57 against 1.64" in said and "dead band" in said
     assert not responsible(replace(s11203, unresolved=said))
-    # another effect on the same evidence: not a dead band
-    for effect in ("backbone_viscoelasticity", "imu_misalignment", "head_payload", "sma_fatigue"):
-        assert dead_band_alone(_single(effect), s11203) == ""
-    # the F test passed (own default 1010's friction is named so)
+    s11510 = _cmp(gap_before_deg=0.226, gap_after_deg=0.169, reduction=0.251,
+                  abs_reduction_deg=0.057, t=3.97, blocks=35, blocks_improved=26, recordings=5,
+                  recordings_improved=5, n_eff=60.0, F=1.783, F_crit=1.972,
+                  rec_reduction_median=0.256, rec_t=6.0, rec_abs_reduction_median_deg=0.05)
+    assert grounds(s11510) == ("tilt",) and not by_f_test(s11510)
+    said = absorber_alone(_single("convection_change"), s11510)
+    assert "F 1.78 against 1.97" in said and "h growing with temperature" in said
+    assert not responsible(replace(s11510, unresolved=said))
+    # another effect on the same evidence: not a generic absorber
+    for effect in ("backbone_viscoelasticity", "imu_misalignment", "head_payload", "sma_fatigue",
+                   "actuation_delay", "supply_limit"):
+        assert absorber_alone(_single(effect), s11203) == ""
+        assert absorber_alone(_single(effect), s11510) == ""
+    # the F test passed (own default 1010's friction is named so; independent 11108's
+    # convection, 25 % of its gap, F 1.77 against 1.53)
     strong = replace(s11203, F=2.4, gap_after_deg=0.31, reduction=0.36, abs_reduction_deg=0.17)
-    assert by_f_test(strong) and dead_band_alone(_single("backbone_friction"), strong) == ""
+    assert by_f_test(strong) and absorber_alone(_single("backbone_friction"), strong) == ""
+    s11108 = replace(s11510, F=1.77, F_crit=1.53, recordings_improved=4)
+    assert by_f_test(s11108) and absorber_alone(_single("convection_change"), s11108) == ""
     # evidence beyond the tilt keeps it
     warmed = replace(s11203, warming=_warming(rms_before_C=0.8, rms_after_C=0.3, reduction=0.625,
                                               abs_reduction_C=0.5, F=5.0, F_crit=1.3))
-    assert dead_band_alone(_single("backbone_friction"), warmed) == ""
+    assert absorber_alone(_single("backbone_friction"), warmed) == ""
 
 
 def test_an_effect_only_the_tilt_shows_is_not_named_where_the_neck_moves_too_little_to_pin_the_mechanics(tmp_path):
