@@ -331,6 +331,44 @@ def test_a_second_effect_is_judged_against_the_first_as_the_pairs_left_it_alone(
     assert strongest(data, held, [best, left(0.5)]) is best
 
 
+def test_a_pair_where_no_single_is_responsible_needs_both_members():
+    # independent rig 11608 (a convection change, wide baseline): no single responsible, the
+    # pair route fitted pairs of the best singles. Beside the convection a supply limit ended
+    # doing nothing held out (0.293 deg with it switched off or on), and the pair with a
+    # payload at its 0.45 kg bound ended at the same 0.293 deg; against its better single alone
+    # (the payload's own fit, 0.403 deg) that pair "removed 27 %" and was named. Against either
+    # member as the pairs left it, the convection left alone by the supply's pair is the pair.
+    from neck_env.gap.diagnose import pair_reference, singles_left, strongest
+    n, recs = 500, 5
+    t = np.arange(n) / 10.0
+    misfit = np.concatenate([0.3 * np.sin(2 * np.pi * t / 40.0 + r) for r in range(recs)])
+    rng = np.random.default_rng(4)
+    data = SimpleNamespace(meas_theta=10.0 + misfit + rng.normal(0.0, 0.02, recs * n),
+                           meas_phi=np.zeros(recs * n), fit_rec=np.repeat(np.arange(recs), n),
+                           fit_idx=np.tile(np.arange(n), recs), t=[t] * recs)
+    held = np.ones(recs * n, bool)
+    left = lambda share: Prediction(10.0 + share * misfit, np.zeros(recs * n), None)
+    payload_alone = SimpleNamespace(effects=("head_payload",), pred=left(0.07))
+    with_payload = SimpleNamespace(effects=("head_payload", "convection_change"), pred=left(0.6))
+    with_supply = SimpleNamespace(effects=("supply_limit", "convection_change"), pred=left(0.6))
+    # switched off member by member: without the payload its pair's baseline is far off; the
+    # supply limit's pair is the convection alone
+    offs = [left(-3.0), left(0.05), left(0.6), left(0.09)]
+    alone = {k: strongest(data, held, v)
+             for k, v in singles_left([with_payload, with_supply], offs).items()}
+    assert alone["convection_change"] is offs[2]
+    # judged against its better single alone (as before): named
+    ref = pair_reference(data, held, payload_alone, with_payload, alone, each_member=False)
+    assert ref is payload_alone.pred and responsible(compare(data, ref, with_payload.pred, held))
+    # against either member as the pairs left it: the payload adds nothing
+    ref = pair_reference(data, held, payload_alone, with_payload, alone, each_member=True)
+    assert ref is offs[2] and not responsible(compare(data, ref, with_payload.pred, held))
+    # a pair whose members are both needed still beats either alone
+    both = SimpleNamespace(effects=("head_payload", "convection_change"), pred=left(0.95))
+    ref = pair_reference(data, held, payload_alone, both, alone, each_member=True)
+    assert responsible(compare(data, ref, both.pred, held))
+
+
 def test_a_neighbours_warming_names_coupling_where_the_tilt_alone_cannot():
     # the tilt evidence falls short (a rig's structural misfit dominates its held-out gap) ...
     weak = _cmp(reduction=0.1, gap_after_deg=0.54, abs_reduction_deg=0.06, F=1.2, t=1.5)

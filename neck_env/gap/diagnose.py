@@ -2106,21 +2106,23 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
             vals = dict(a.setting())
             vals.update({k: v for k, v in b.values.items() if split_key(k)[0] == b.effects[0]})
             pairs.append(effect_candidate(model, [a.effects[0], b.effects[0]], {}, vals))
-        # each pair against its better member alone; responsible as a pair: significant
-        # against nominal, and better than that member by the F test (both members needed),
-        # or by the warming it adds to that member (the tilt still significant against nominal)
+        # each pair against its better member alone, and against either member as the pairs'
+        # fits left it (``singles_left``); responsible as a pair: significant against nominal,
+        # and better than that reference by the F test (both members needed), or by the
+        # warming it adds to it (the tilt still significant against nominal)
         better = lambda p: min((c for c in singles if c.effects[0] in p.effects),
                                key=lambda c: single_cmp[c.name].gap_after_deg)
         pair_cmp = (_fit_and_judge_pairs(
             fitter, data, pairs, better, nominal, run.hold_rec, run.hold_mask, run.max_iter,
             lambda s: significant(s.vs_nominal) and (s.F > s.F_crit and beats_structure(s)
                                                      or warms(s)),
-            best_null, att.rival) if pairs else {})
+            best_null, att.rival, reference_from_pairs=True, each_member=True)
+            if pairs else {})
         for p in pairs:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s.vs_nominal.gap_before_deg:.3f} -> "
                 f"{s.gap_after_deg:.3f} deg ({100 * s.vs_nominal.reduction:+.0f} % vs nominal, "
-                f"F = {s.F:.2f} vs its better member)")
+                f"F = {s.F:.2f} vs either member alone)")
         good = [p for p in pairs if pair_cmp[p.name].accepted]
         if good:
             verdict_c = good[0]
@@ -2385,7 +2387,8 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
                          nominal: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray,
                          max_iter: int, accept, best_null: Candidate | None = None,
                          rival: bool = False, demote_pinned: bool = False,
-                         reference_from_pairs: bool = False) -> dict[str, Comparison]:
+                         reference_from_pairs: bool = False,
+                         each_member: bool = False) -> dict[str, Comparison]:
     """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)``, with
     the nominal refit (``vs_nominal``) and with the best structural discrepancy
     (``vs_structure``; ``rival``: it is itself significant), mark ``accepted`` by
@@ -2394,7 +2397,14 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     accepted -- the forward step's pairs where an effect is responsible inside its range. Nor
     is one whose fit leaves the mechanics to their priors (``mechanics_unidentified``).
     ``reference_from_pairs``: a single-effect reference is the best held out of itself and
-    that effect as the pairs' fits left it alone (``singles_left``)."""
+    that effect as the pairs' fits left it alone (``singles_left``); ``each_member``: the
+    reference is also each member of the pair as the pairs' fits left it, so that a pair is
+    named only where both members are needed -- where no single is responsible, a pair with
+    one member that only lets the baseline move is the other member refitted (independent rig
+    11608, a convection change on a wide baseline: beside it a supply limit left the held-out
+    recordings as they were with it switched off, 0.293 deg either way, and the pair with a
+    payload at its 0.45 kg bound ended at the same 0.293 deg; each pair beat its better single
+    alone, 0.390 and 0.403 deg, and the payload's was named)."""
     fitter.run(pairs, max_iter=max_iter)
     for p in pairs:
         settle_draft(fitter.model, p, hold_rec, hold_mask)
@@ -2408,8 +2418,7 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         ref = reference(p)
-        n = ref.effects[0] if len(ref.effects) == 1 else None
-        ref_pred = strongest(data, hold_mask, [ref.pred, left[n]]) if n in left else ref.pred
+        ref_pred = pair_reference(data, hold_mask, ref, p, left, each_member)
         members = [(off_compare(data, off, p.pred, fitter.mask, n),
                     off_compare(data, off, p.pred, hold_mask, n))
                    for n, off in zip(p.effects, offs)]
@@ -2450,6 +2459,16 @@ def singles_left(pairs: Sequence[Candidate],
         if len(rest) == 1:
             out.setdefault(rest[0], []).append(off)
     return out
+
+
+def pair_reference(data: Prepared, mask: np.ndarray, ref: Candidate, pair: Candidate,
+                   left: dict[str, Prediction], each_member: bool) -> Prediction:
+    """What ``pair`` is judged against (``_fit_and_judge_pairs``): ``ref`` (a single, or the
+    nominal refit), or the strongest on ``mask`` of it and what the pairs' fits left alone
+    (``left``: ``singles_left``'s strongest per effect) of ``ref``'s effect -- or, with
+    ``each_member``, of either member of the pair."""
+    alone = pair.effects if each_member else ref.effects if len(ref.effects) == 1 else ()
+    return strongest(data, mask, [ref.pred] + [left[n] for n in alone if n in left])
 
 
 def strongest(data: Prepared, mask: np.ndarray, preds: Sequence[Prediction]) -> Prediction:
