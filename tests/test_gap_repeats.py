@@ -77,6 +77,27 @@ def test_a_moved_rest_reading_or_a_short_span_decides_nothing():
     assert "at least 50 %" in short.why
 
 
+def test_the_rest_reading_is_the_settled_one_as_the_diagnosis_reads_it():
+    # a host that starts the IMU's tilt filter with the session: the first recording's reading
+    # climbs to the rest (here a 3 deg zero offset, filter tau 0.5 s) through its 2 s wait. Over
+    # the whole wait it reads 0.75 deg short of where it settles, a rest that "moved" by more
+    # than the start of a 30 deg bend may; its last 0.25 s read it as every later recording does
+    from neck_env.gap.rest import settled_rest
+    first = _rec("rec_01", rest=(3.0, 0.0))
+    t = first.t
+    x = first.theta_deg * np.cos(np.radians(first.phi_deg)) - 3.0 * np.exp(-t / 0.5)
+    y = first.theta_deg * np.sin(np.radians(first.phi_deg))
+    first = Recording(t=t, currents_A=first.currents_A, theta_deg=np.hypot(x, y),
+                      phi_deg=np.degrees(np.arctan2(y, x)) % 360.0, name="rec_01")
+    wait = t < 2.0
+    assert 3.0 - x[wait].mean() > 0.7
+    assert 3.0 - x[settled_rest(t, int(wait.sum()))].mean() < 0.1
+    rc = repeats.check(_session(first, _rec("rec_10", rest=(3.0, 0.0), seed=1)))
+    (r,) = rc.repeats
+    assert r.rest_shift_deg < 0.1 and r.verdict == "unchanged"
+    assert r.bend_change_deg == pytest.approx(0.0, abs=0.15)
+
+
 def test_a_warmer_start_is_measured_and_said():
     """The springs' start temperature (measured T1..T3 before the first relay) of the last
     against the first: reported, and said where the repeat found nothing -- a warmer spring

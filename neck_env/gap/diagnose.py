@@ -58,6 +58,7 @@ from .. import effects as fx
 from ..physics.plant import cold_terminals_cooling_time_constant_s, cooling_time_constant_s
 from ..recording import Dataset
 from . import currents, localize, repeats
+from .rest import MIN_REST_SAMPLES, settled_rest
 from .fit import Candidate, Fitter, covariance
 from .model import (DRAFT_FROM, EFFECT_OFF, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, SCANNED,
                     STRUCTURE, SUPPLY_OFF_V, Model, ParamSpec,
@@ -87,13 +88,6 @@ UNEXPLAINED_REST_DEG = 0.3  # rest reading moving by more than this: RMS between
 # not actuate. A tenth of the paper's smallest response (Table 1: 4.73 deg at 4 A), rounded
 NO_ACTUATION_DEG = 0.5
 DRIFT_R2 = 0.6  # ... or first to last along a straight line in recorded time this steady: a drift
-# The reading at rest is the last this long before the first command (at least 5 samples): a tilt
-# filter started with each recording reads a transient first (the independent rig's, tau 0.7 s,
-# from the accelerometer alone), and a mean over the whole wait weighs that transient in by how
-# long each recording waited -- another lab's timing waits 0.5-3.9 s, and a steady gyro drift
-# then read as scatter (independent 11114, drawn protocol: R^2 0.49 over the wait, 0.80 over
-# its last 0.25 s; on 261 other stored datasets no rest decision changes).
-REST_READ_S = 0.25
 SCAN_SENSOR = 96  # scan points for sensor-only effects (no simulation needed)
 SCAN_GRID = {1: 5, 2: 3}  # per-axis scan points for plant effects with 1 or 2 parameters
 
@@ -1567,10 +1561,10 @@ def full_residuals(data: Prepared, full_pred: list[dict]) -> list[dict]:
 
 
 def rest_offsets(data: Prepared, full_pred: list[dict]) -> np.ndarray:
-    """Mean residual tilt vector at rest per recording: over its last ``REST_READ_S`` before the
-    first command, where every recording starts at rest (``experiments.REST``; NaN where a
-    recording has fewer than 5 samples there), the reading a filter started with the recording
-    has settled to. Not ``localize``'s command-based rest phase (all off for 20 s): a neck
+    """Mean residual tilt vector at rest per recording: over its last ``rest.REST_READ_S``
+    before the first command (``rest.settled_rest``), where every recording starts at rest
+    (``experiments.REST``; NaN where a recording has fewer than ``MIN_REST_SAMPLES`` there), the
+    reading a filter started with the recording has settled to. Not ``localize``'s command-based rest phase (all off for 20 s): a neck
     that cools slowly is still bent then, and the model's misfit there is not the reading at
     rest (independent rig, effect-free seed 5005: 47 deg at 27-30 s, read as a rest reading
     that changed by 0.84 deg RMS between recordings)."""
@@ -1578,11 +1572,9 @@ def rest_offsets(data: Prepared, full_pred: list[dict]) -> np.ndarray:
     for r in range(data.n_rec):
         on = (data.cmd[r] > 0).any(axis=1)
         first = int(np.argmax(on)) if on.any() else on.size
-        if first < 5:
+        if first < MIN_REST_SAMPLES:
             continue
-        t = data.t[r]
-        i = np.arange(on.size)
-        sel = (i < first) & ((t >= t[first - 1] - REST_READ_S) | (i >= first - 5))
+        sel = settled_rest(data.t[r], first)
         p = full_pred[r]
         mx = data.theta[r] * np.cos(np.radians(data.phi[r]))
         my = data.theta[r] * np.sin(np.radians(data.phi[r]))

@@ -13,8 +13,8 @@ Recordings have the same input when they switch the same relays at the same supp
 same times, allowing a common delay of up to ``MAX_SHIFT_S`` (a host that fell behind starts
 its schedule late). For each group of recordings with the same input, the first against the
 last, over the duration both cover, with the tilt taken as a vector from each recording's own
-rest reading (the mean before its first relay closes, so an IMU zero that moved between them
-does not count as bend):
+rest reading (the settled one before its first relay closes, ``rest.settled_rest``, so an IMU
+zero that moved between them does not count as bend):
 
 * **bend**: the largest tilt from rest (0.1 s running mean);
 * **return**: from the last relay opening to the tilt falling to half that bend (the cooling);
@@ -66,6 +66,7 @@ import numpy as np
 
 from ..experiments import REPEAT_START_K
 from ..recording import Dataset, Recording
+from .rest import settled_rest
 
 GRID_S = 0.02  # commands compared on this grid (zero-order hold)
 ON_A = 0.5  # a relay counts as on above this commanded current
@@ -239,7 +240,12 @@ def _shape(rec: Recording, dur: float) -> _Shape | None:
     pre = ok & (t < t_on)
     if not pre.any() or t_on - t[pre][0] < MIN_PRE_S:
         return None
-    rest = np.array([x[pre].mean(), y[pre].mean()])
+    # the settled reading, as the diagnosis reads it: a filter started with the recording has
+    # not settled at its start, and how long each recording waited would move its bend
+    at_rest = pre & settled_rest(t, int(np.argmax(on)))
+    if not at_rest.any():
+        return None
+    rest = np.array([x[at_rest].mean(), y[at_rest].mean()])
     # sample-to-sample noise: a neck still settling before the pulse is not noise
     noise = float(np.sqrt((np.diff(x[pre]).var() + np.diff(y[pre]).var()) / 2)) if pre.sum() > 2 else 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else GRID_S

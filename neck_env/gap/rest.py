@@ -40,6 +40,15 @@ from ..recording import Dataset, Recording
 
 __all__ = ["not_at_rest", "stuck_starts", "start_tilt", "without", "rest_reading", "SLACK", "WINDOW_S"]
 
+# The reading at rest is the last this long before the first command (at least
+# ``MIN_REST_SAMPLES``): a tilt filter started with each recording reads a transient first (the
+# independent rig's, tau 0.7 s, from the accelerometer alone), and a mean over the whole wait
+# weighs that transient in by how long each recording waited -- another lab's timing waits
+# 0.5-3.9 s, and a steady gyro drift then read as scatter (independent 11114, drawn protocol:
+# R^2 0.49 over the wait, 0.80 over its last 0.25 s; on 261 other stored datasets no rest
+# decision changes). The diagnosis's rest offsets and the repeats' bends both read it here.
+REST_READ_S = 0.25
+MIN_REST_SAMPLES = 5
 SLACK = 2.0
 WINDOW_S = 0.5
 MIN_FOR_TREND = 5  # fewer starts: one rest reading (their median); a line through 3-4 bends too easily
@@ -52,6 +61,14 @@ MIN_STUCK = 2
 # a start held off its rest moves before the first command by at most this share of its offset
 # (beyond the recordings' common motion; a reading that settles back moves by all of it)
 STILL_SHARE = 0.5
+
+
+def settled_rest(t: np.ndarray, first: int) -> np.ndarray:
+    """Which samples of a recording (times ``t``) are its reading at rest before its first
+    command at index ``first`` (>= 1): the last ``REST_READ_S`` of the wait, and at least its
+    last ``MIN_REST_SAMPLES`` samples."""
+    i = np.arange(t.size)
+    return (i < first) & ((t >= t[first - 1] - REST_READ_S) | (i >= first - MIN_REST_SAMPLES))
 
 
 def _start(rec: Recording, window_s: float) -> np.ndarray:
