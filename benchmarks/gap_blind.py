@@ -537,6 +537,9 @@ def main(argv=None) -> int:
                     help="every recording starts upright (the default) or "
                          "where the rig's wait for rest leaves the neck (cooled: a backbone with "
                          "friction holds it off upright, as on a real rig)")
+    ap.add_argument("--convection", choices=("constant", "natural"), default=None,
+                    help="independent rig only: the springs' h constant (its default) or "
+                    "following natural convection in still air, h ~ dT^0.25 (no effect)")
     ap.add_argument("--no-wire-meta", action="store_true",
                     help="leave the wire's diameter and specific heat out of meta.json (h is then "
                     "not identifiable; the cooling time constant still is)")
@@ -573,7 +576,8 @@ def main(argv=None) -> int:
                              ("temperatures", {"always": True, "never": False}.get(args.thermistors)),
                              ("wire_meta", False if args.no_wire_meta else None),
                              ("current_sensor", True if args.current_sensor else None),
-                             ("starts", args.starts))
+                             ("starts", args.starts),
+                             ("convection", args.convection))
            if v is not None}
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
     # only when set: folders of earlier runs resume as they were
@@ -584,6 +588,9 @@ def main(argv=None) -> int:
     only = {int(x) for x in args.only.split(",")} if args.only else None
     if args.resume and not args.out:
         ap.error("--resume needs --out (the folder of the interrupted run)")
+    if args.convection is not None and args.generator != "independent":
+        ap.error(f"--convection is the independent rig's option, not the {args.generator} "
+                 f"generator's")
     if args.effect_free is not None and args.effect_free < 1:
         ap.error(f"--effect-free needs at least one dataset, got {args.effect_free}")
     every = cases(args.quick, args.first_seed, args.effect_free)

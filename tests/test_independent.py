@@ -190,6 +190,37 @@ def test_temperature_dependent_convection_cools_hot_springs_faster():
     assert np.all(tdep["T_C"][late, 0] - amb < base["T_C"][late, 0] - amb)
 
 
+def test_natural_convection_cools_a_spring_as_its_excess_temperature_to_the_quarter_power():
+    # laminar free convection: h ~ dT^0.25, so a spring's cooling rate -d ln(dT)/dt grows by
+    # 2^0.25 = 1.19 from 40 K to 80 K above ambient, where a constant h keeps it (no phase
+    # change between: austenite until M_s)
+    t = np.arange(40 * 50) / 50.0
+    cmd = np.zeros((t.size, 3))
+    cmd[(t >= 1.0) & (t < 6.0), 0] = 7.0
+    amb = ind.CALIBRATED.ambient_C
+
+    def rates(law):
+        p = ind.replace(ind.CALIBRATED, h_exponent=ind.CONVECTION_LAWS[law])
+        dT = ind.simulate_recording(p, cmd)["T_C"][:, 0] - amb
+        cooling = t > 6.5
+        lam = -np.gradient(np.log(np.clip(dT, 1e-3, None)), t)
+        return [lam[np.flatnonzero(cooling & (dT < x))[0]] for x in (80.0, 40.0)]
+
+    (c80, c40), (n80, n40) = rates("constant"), rates("natural")
+    assert (n80 / n40) / (c80 / c40) == pytest.approx(2 ** 0.25, rel=0.02)
+    assert n40 < c40 < c80 < n80  # h as drawn at 50 K: less below, more above
+
+
+def test_natural_convection_is_drawn_into_the_truth_and_bad_laws_are_named(tmp_path):
+    _, truth = _small(tmp_path, "nat", convection="natural", n_recordings=2)
+    assert truth["convection"] == "natural" and truth["baseline"]["h_exponent"] == 0.25
+    _, same = _small(tmp_path, "const", n_recordings=2)
+    assert same["convection"] == "constant" and same["baseline"]["h_exponent"] == 0.0
+    assert same["baseline"]["h_W_m2K"] == truth["baseline"]["h_W_m2K"]  # the same rig otherwise
+    with pytest.raises(ValueError, match="unknown convection 'forced'"):
+        _small(tmp_path, "bad", convection="forced")
+
+
 def test_fatigue_lowers_the_bend_and_leaves_the_rest_state():
     _, cmd = _pulse_cmd(8.0)
     fat = {"sma_fatigue": {"rate": 0.05, "max_loss": 0.4}}

@@ -103,7 +103,9 @@ ambient                     uniform 15 .. 35 C                     (meta.json: +
 ==========================  =====================================  ============================
 
 ``baseline="default"`` keeps the calibrated values with +-3 % jitter (ambient 20-28 C, shift
-+-1 C). The truth reports every drawn value and its ratio, plus ``convection_W_m2K`` (W per m^2
++-1 C). ``convection="natural"`` makes every spring's h follow laminar free convection,
+h ~ (T - T_amb)^0.25 (the drawn h at 50 K above ambient), instead of a constant h: a real rig in
+still air, with no effect. The truth reports every drawn value and its ratio, plus ``convection_W_m2K`` (W per m^2
 of spring wire surface per K) and ``cooling_time_constant_s`` (m c / (h A) of spring A).
 
 Effects (zero, one or two; magnitudes drawn within ``neck_env.effects.EFFECTS[name].params``)
@@ -241,7 +243,10 @@ class RigParams:
     density_kg_m3: float = 6450.0
     c_p_J_kgK: float = 550.0
     latent_J_kg: float = 18000.0
-    h_W_m2K: float = 50.0
+    h_W_m2K: float = 50.0  # at H_REF_DT_K above ambient where h_exponent > 0
+    # h ~ (T - T_amb)^h_exponent: 0 a constant h (forced air, the calibration's), 0.25 laminar
+    # natural convection about a thin wire in still air (Churchill-Chu's small-Rayleigh limit)
+    h_exponent: float = 0.0
     K_backbone_Nm_rad: float = 1.2
     head_mass_kg: float = 0.25
     head_com_m: float = 0.025
@@ -300,7 +305,9 @@ def _geometry(gamma_L: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
 # packed scalar constants (indices are compile-time constants for numba)
 (P_L, P_D, P_CD, P_KW, P_GA, P_GM, P_GAML, P_AS, P_AF, P_MS, P_MF, P_CA, P_CM, P_RHOA, P_RHOM,
  P_DENS, P_CP, P_DH, P_H, P_HTC, P_HMUL, P_TAMB, P_KB, P_CDAMP, P_J, P_MGH0, P_H0, P_MGH1, P_H1,
- P_KM, P_TAUM, P_FRIC, P_VSUP, P_RW, P_COUP, P_DELAY, P_FRATE, P_FMAX, N_P) = range(39)
+ P_KM, P_TAUM, P_FRIC, P_VSUP, P_RW, P_COUP, P_DELAY, P_FRATE, P_FMAX, P_HEXP, N_P) = range(40)
+H_REF_DT_K = 50.0  # a natural-convection h is the rig's h_W_m2K this far above ambient
+CONVECTION_LAWS = {"constant": 0.0, "natural": 0.25}  # law -> h_exponent
 
 
 @njit(cache=True)
@@ -561,6 +568,8 @@ def _simulate(cmd, sub, dt, P, A, B, ncoil, wlen, lfree, muscle, fatN, st, q_out
                 rho = P[P_RHOM] * xi[s] + P[P_RHOA] * (1.0 - xi[s])
                 Pj = Imus[m] ** 2 * rho * wlen[s] / Ax
                 h = P[P_H] * P[P_HMUL] * (1.0 + P[P_HTC] * (T[s] - P[P_TAMB]))
+                if P[P_HEXP] > 0.0:  # floored at 1 K: no still-air h vanishes at ambient
+                    h *= (max(T[s] - P[P_TAMB], 1.0) / H_REF_DT_K) ** P[P_HEXP]
                 hA = h * area[s]
                 Qc = 0.0
                 if P[P_COUP] > 0.0:
@@ -624,7 +633,7 @@ def _pack(p: RigParams, eff: Mapping[str, Mapping[str, float]] | None = None) ->
     P[P_CA], P[P_CM] = p.C_A_Pa_K, p.C_M_Pa_K
     P[P_RHOA], P[P_RHOM] = p.rho_austenite_ohm_m, p.rho_martensite_ohm_m
     P[P_DENS], P[P_CP], P[P_DH] = p.density_kg_m3, p.c_p_J_kgK, p.latent_J_kg
-    P[P_H], P[P_HMUL], P[P_TAMB] = p.h_W_m2K, 1.0, p.ambient_C
+    P[P_H], P[P_HMUL], P[P_TAMB], P[P_HEXP] = p.h_W_m2K, 1.0, p.ambient_C, p.h_exponent
     P[P_KB] = p.K_backbone_Nm_rad
     arm = BACKBONE_L_M / 2
     J = p.head_mass_kg * (arm + p.head_com_m) ** 2 + p.plate_inertia_kgm2
@@ -995,7 +1004,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
              n_recordings: int = 15, duration_s: float = 30.0, sample_hz: float = 50.0,
              temperatures: bool | None = None, baseline: str = "wide",
              truth_path: str | Path | None = None, wire_meta: bool = True,
-             current_sensor: bool = False, starts: str = "upright") -> dict:
+             current_sensor: bool = False, starts: str = "upright",
+             convection: str = "constant") -> dict:
     """Write a dataset of this independent rig to ``out_dir`` and its truth beside it.
 
     ``starts``: ``upright`` (every recording starts at rest upright, as if the neck were reset
@@ -1004,6 +1014,11 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
 
     ``wire_meta``: meta.json gives the wire as its builder knows it: the diameter, and the
     datasheet's specific heat (the calibrated value), not this rig's drawn one.
+
+    ``convection``: how the springs' h depends on their temperature (``CONVECTION_LAWS``):
+    ``constant`` (the calibration's), or ``natural``, laminar free convection in still air
+    (h ~ dT^0.25, the drawn h at ``H_REF_DT_K`` above ambient: 0.56 of it 5 K above ambient,
+    1.19 of it at 100 K) -- what a real rig in a quiet room does without any effect.
 
     ``current_sensor``: the recordings also hold ``i1_meas..i3_meas`` (a Hall sensor's reading of
     the current that flowed, from a generator of its own: the other columns are unchanged).
@@ -1014,6 +1029,8 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
         raise ValueError(f"unknown protocol {protocol!r}; known: {PROTOCOLS}")
     if starts not in STARTS:
         raise ValueError(f"unknown starts {starts!r}; known: {STARTS}")
+    if convection not in CONVECTION_LAWS:
+        raise ValueError(f"unknown convection {convection!r}; known: {tuple(CONVECTION_LAWS)}")
     if not (sample_hz > 0 and math.isfinite(sample_hz)):
         raise ValueError(f"sample_hz must be > 0, got {sample_hz!r}")
     out_dir = Path(out_dir)
@@ -1022,6 +1039,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     r_base, r_proto, r_eff, rng = (np.random.default_rng(s)
                                    for s in np.random.SeedSequence(seed).spawn(4))
     p, ratios = _draw_baseline(r_base, baseline)
+    p = replace(p, h_exponent=CONVECTION_LAWS[convection])
     if temperatures is None:
         temperatures = bool(r_base.integers(2))
     recs = diagnosis_protocol(r_proto, protocol, n_recordings, duration_s)
@@ -1099,7 +1117,7 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
                  "kind": baseline, "ratios": ratios})
     truth = {
         "generator": GENERATOR, "seed": seed, "protocol": protocol, "sample_hz": sample_hz,
-        "starts": starts,
+        "starts": starts, "convection": convection,
         "effects": eff, "effect_names": sorted(eff),
         "catalogued": sorted(e for e in eff if e in CATALOGUE),
         "temperatures": bool(temperatures), "baseline": base,
@@ -1138,6 +1156,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--starts", choices=STARTS, default="upright",
                     help="upright: every recording starts upright (the neck reset between "
                          "recordings); cooled: from where the rig's wait for rest leaves it")
+    ap.add_argument("--convection", choices=tuple(CONVECTION_LAWS), default="constant",
+                    help="the springs' h: constant, or natural convection in still air "
+                         "(h ~ dT^0.25, the drawn h at 50 K above ambient)")
     args = ap.parse_args(argv)
     if args.calibrate:
         print("current constants:")
@@ -1157,7 +1178,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         effects, kwargs = dataset_arguments(args)
         t0 = time.perf_counter()
         truth = generate(args.out_dir, effects, baseline=args.baseline, starts=args.starts,
-                         **kwargs)
+                         convection=args.convection, **kwargs)
     except (ValueError, json.JSONDecodeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
