@@ -295,21 +295,26 @@ def test_an_effect_that_does_nothing_in_its_own_fit_is_not_named():
     assert not acts(replace(better, vs_off=idle, vs_off_heldout=idle))
 
 
+def _slow_misfit(seed: int, recs: int = 5, n: int = 500):
+    """Five held-out recordings of 50 s with a slow misfit of 0.3 deg on noise of 0.02 deg:
+    (data, held-out mask, ``left(share)``: a prediction that takes that share of the misfit)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 10.0
+    misfit = np.concatenate([0.3 * np.sin(2 * np.pi * t / 40.0 + r) for r in range(recs)])
+    data = SimpleNamespace(meas_theta=10.0 + misfit + rng.normal(0.0, 0.02, recs * n),
+                           meas_phi=np.zeros(recs * n), fit_rec=np.repeat(np.arange(recs), n),
+                           fit_idx=np.tile(np.arange(n), recs), t=[t] * recs)
+    left = lambda share: Prediction(10.0 + share * misfit, np.zeros(recs * n), None)
+    return data, np.ones(recs * n, bool), left
+
+
 def test_a_second_effect_is_judged_against_the_first_as_the_pairs_left_it_alone():
     # own wide rig 10714 (a friction alone): the friction refitted alone left 0.083 deg held
     # out; its pair with a payload ended at 0 kg with 0.058 deg, and a creep beside the friction
     # (0.060 deg) "removed 27 %" of the first and was named. Each pair with its other member
     # switched off is the first effect alone, and the strongest of those is the reference.
     from neck_env.gap.diagnose import singles_left, strongest
-    rng = np.random.default_rng(3)
-    n, recs = 500, 5
-    t = np.arange(n) / 10.0
-    misfit = np.concatenate([0.3 * np.sin(2 * np.pi * t / 40.0 + r) for r in range(recs)])
-    data = SimpleNamespace(meas_theta=10.0 + misfit + rng.normal(0.0, 0.02, recs * n),
-                           meas_phi=np.zeros(recs * n), fit_rec=np.repeat(np.arange(recs), n),
-                           fit_idx=np.tile(np.arange(n), recs), t=[t] * recs)
-    held = np.ones(recs * n, bool)
-    left = lambda share: Prediction(10.0 + share * misfit, np.zeros(recs * n), None)
+    data, held, left = _slow_misfit(seed=3)
     control = SimpleNamespace(effects=("backbone_friction",), pred=left(0.0))
     payload = SimpleNamespace(effects=("backbone_friction", "head_payload"), pred=left(0.9))
     creep = SimpleNamespace(effects=("backbone_friction", "backbone_viscoelasticity"),
@@ -339,15 +344,7 @@ def test_a_pair_where_no_single_is_responsible_needs_both_members():
     # (the payload's own fit, 0.403 deg) that pair "removed 27 %" and was named. Against either
     # member as the pairs left it, the convection left alone by the supply's pair is the pair.
     from neck_env.gap.diagnose import pair_reference, singles_left, strongest
-    n, recs = 500, 5
-    t = np.arange(n) / 10.0
-    misfit = np.concatenate([0.3 * np.sin(2 * np.pi * t / 40.0 + r) for r in range(recs)])
-    rng = np.random.default_rng(4)
-    data = SimpleNamespace(meas_theta=10.0 + misfit + rng.normal(0.0, 0.02, recs * n),
-                           meas_phi=np.zeros(recs * n), fit_rec=np.repeat(np.arange(recs), n),
-                           fit_idx=np.tile(np.arange(n), recs), t=[t] * recs)
-    held = np.ones(recs * n, bool)
-    left = lambda share: Prediction(10.0 + share * misfit, np.zeros(recs * n), None)
+    data, held, left = _slow_misfit(seed=4)
     payload_alone = SimpleNamespace(effects=("head_payload",), pred=left(0.07))
     with_payload = SimpleNamespace(effects=("head_payload", "convection_change"), pred=left(0.6))
     with_supply = SimpleNamespace(effects=("supply_limit", "convection_change"), pred=left(0.6))
