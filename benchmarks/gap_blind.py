@@ -61,6 +61,7 @@ from agents.distributed import add_ray_argument, fan_out
 from neck_env import effects as fx
 from neck_env.experiments import PROTOCOLS
 from neck_env.gap.cli import main as gap_main
+from neck_env.gap.independent import CONVECTION_LAWS
 from neck_env.gap.model import tilt_vec
 from neck_env.gap.synthetic import generate
 from neck_env.recording import read_recording
@@ -537,9 +538,10 @@ def main(argv=None) -> int:
                     help="every recording starts upright (the default) or "
                          "where the rig's wait for rest leaves the neck (cooled: a backbone with "
                          "friction holds it off upright, as on a real rig)")
-    ap.add_argument("--convection", choices=("constant", "natural"), default=None,
+    ap.add_argument("--convection", choices=tuple(CONVECTION_LAWS), default=None,
                     help="independent rig only: the springs' h constant (its default) or "
-                    "following natural convection in still air, h ~ dT^0.25 (no effect)")
+                    "following free convection in still air (natural: h ~ dT^0.25, "
+                    "thin_wire: dT^0.15; no effect)")
     ap.add_argument("--no-wire-meta", action="store_true",
                     help="leave the wire's diameter and specific heat out of meta.json (h is then "
                     "not identifiable; the cooling time constant still is)")

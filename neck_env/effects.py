@@ -148,7 +148,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
         "every time constant changing from one recording on (a draft starts). A constant gain "
         "from the start is the same as a different h: the diagnosis calls it a recalibration "
         "(ambiguous with h), not an effect. Springs in still air grow their h by themselves "
-        "(free convection, h ~ dT^0.25, is fitted as 0.006-0.007/K): a growth with no draft "
+        "(free convection, h ~ dT^0.15-0.25, is fitted as 0.003-0.008/K): a growth with no draft "
         "may be the room's still air, which the model's constant h lacks",
         {"gain": (0.4, 2.5, "-", "h multiplier while the draft blows"),
          "tcoef_per_K": (0.0, 0.012, "1/K", "relative change of h per K above ambient"),

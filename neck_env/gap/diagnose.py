@@ -58,12 +58,12 @@ from .. import effects as fx
 from ..physics.plant import cold_terminals_cooling_time_constant_s, cooling_time_constant_s
 from ..recording import Dataset
 from . import currents, localize, repeats
-from .rest import MIN_REST_SAMPLES, settled_rest
 from .fit import Candidate, Fitter, covariance
 from .model import (DRAFT_FROM, EFFECT_OFF, EFFECT_SPECS, HEAT_CAPACITY_PRIOR_SIGMA, SCANNED,
                     STRUCTURE, SUPPLY_OFF_V, Model, ParamSpec,
                     Prediction, Prepared, drift_specs, is_drift_key, prepare, residual_parts,
                     split_key, switched_off, tilt_vec)
+from .rest import MIN_REST_SAMPLES, settled_rest
 
 # held-out F test level, per effect. The effective sample count (AR(1)) is conservative: on 40
 # effect-free blind datasets of both generators the best of the nine effects passed the F test
@@ -1564,10 +1564,11 @@ def rest_offsets(data: Prepared, full_pred: list[dict]) -> np.ndarray:
     """Mean residual tilt vector at rest per recording: over its last ``rest.REST_READ_S``
     before the first command (``rest.settled_rest``), where every recording starts at rest
     (``experiments.REST``; NaN where a recording has fewer than ``MIN_REST_SAMPLES`` there), the
-    reading a filter started with the recording has settled to. Not ``localize``'s command-based rest phase (all off for 20 s): a neck
-    that cools slowly is still bent then, and the model's misfit there is not the reading at
-    rest (independent rig, effect-free seed 5005: 47 deg at 27-30 s, read as a rest reading
-    that changed by 0.84 deg RMS between recordings)."""
+    reading a filter started with the recording has settled to. Not ``localize``'s
+    command-based rest phase (all off for 20 s): a neck that cools slowly is still bent then,
+    and the model's misfit there is not the reading at rest (independent rig, effect-free seed
+    5005: 47 deg at 27-30 s, read as a rest reading that changed by 0.84 deg RMS between
+    recordings)."""
     out = np.full((data.n_rec, 2), np.nan)
     for r in range(data.n_rec):
         on = (data.cmd[r] > 0).any(axis=1)

@@ -103,10 +103,10 @@ ambient                     uniform 15 .. 35 C                     (meta.json: +
 ==========================  =====================================  ============================
 
 ``baseline="default"`` keeps the calibrated values with +-3 % jitter (ambient 20-28 C, shift
-+-1 C). ``convection="natural"`` makes every spring's h follow laminar free convection,
-h ~ (T - T_amb)^0.25 (the drawn h at 50 K above ambient), instead of a constant h: a real rig in
-still air, with no effect. The truth reports every drawn value and its ratio, plus ``convection_W_m2K`` (W per m^2
-of spring wire surface per K) and ``cooling_time_constant_s`` (m c / (h A) of spring A).
++-1 C). ``convection="natural"`` (or ``"thin_wire"``) makes every spring's h follow free
+convection in still air, h ~ (T - T_amb)^0.25 (^0.15), the drawn h at 50 K above ambient,
+instead of a constant h: a real rig in a quiet room, with no effect. The truth reports every
+drawn value and its ratio, plus ``convection_W_m2K`` (W per m^2 of spring wire surface per K) and ``cooling_time_constant_s`` (m c / (h A) of spring A).
 
 Effects (zero, one or two; magnitudes drawn within ``neck_env.effects.EFFECTS[name].params``)
 ---------------------------------------------------------------------------------------------
@@ -244,8 +244,8 @@ class RigParams:
     c_p_J_kgK: float = 550.0
     latent_J_kg: float = 18000.0
     h_W_m2K: float = 50.0  # at H_REF_DT_K above ambient where h_exponent > 0
-    # h ~ (T - T_amb)^h_exponent: 0 a constant h (forced air, the calibration's), 0.25 laminar
-    # natural convection about a thin wire in still air (Churchill-Chu's small-Rayleigh limit)
+    # h ~ (T - T_amb)^h_exponent: 0 a constant h (forced air, the calibration's); free
+    # convection in still air 0.15-0.25 (``CONVECTION_LAWS``)
     h_exponent: float = 0.0
     K_backbone_Nm_rad: float = 1.2
     head_mass_kg: float = 0.25
@@ -307,7 +307,10 @@ def _geometry(gamma_L: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
  P_DENS, P_CP, P_DH, P_H, P_HTC, P_HMUL, P_TAMB, P_KB, P_CDAMP, P_J, P_MGH0, P_H0, P_MGH1, P_H1,
  P_KM, P_TAUM, P_FRIC, P_VSUP, P_RW, P_COUP, P_DELAY, P_FRATE, P_FMAX, P_HEXP, N_P) = range(40)
 H_REF_DT_K = 50.0  # a natural-convection h is the rig's h_W_m2K this far above ambient
-CONVECTION_LAWS = {"constant": 0.0, "natural": 0.25}  # law -> h_exponent
+# law -> h_exponent: free convection about a horizontal cylinder goes as Nu ~ Ra^n (Morgan's
+# correlation: n 0.25 for Ra 1e4-1e7, 0.188 for 1e2-1e4, 0.148 for 1e-2-1e2); a 0.5 mm wire 50 K
+# above ambient sits near Ra 1, a 5 mm coil near Ra 1e3, so 0.25 is the upper end
+CONVECTION_LAWS = {"constant": 0.0, "natural": 0.25, "thin_wire": 0.15}
 
 
 @njit(cache=True)
@@ -1016,9 +1019,10 @@ def generate(out_dir: str | Path, effects=None, seed: int = 0, protocol: str = "
     datasheet's specific heat (the calibrated value), not this rig's drawn one.
 
     ``convection``: how the springs' h depends on their temperature (``CONVECTION_LAWS``):
-    ``constant`` (the calibration's), or ``natural``, laminar free convection in still air
-    (h ~ dT^0.25, the drawn h at ``H_REF_DT_K`` above ambient: 0.56 of it 5 K above ambient,
-    1.19 of it at 100 K) -- what a real rig in a quiet room does without any effect.
+    ``constant`` (the calibration's), or free convection in still air, ``natural`` (h ~ dT^0.25,
+    the drawn h at ``H_REF_DT_K`` above ambient: 0.56 of it 5 K above ambient, 1.19 of it at
+    100 K) or ``thin_wire`` (h ~ dT^0.15, a wire's small Rayleigh numbers) -- what a real rig in
+    a quiet room does without any effect.
 
     ``current_sensor``: the recordings also hold ``i1_meas..i3_meas`` (a Hall sensor's reading of
     the current that flowed, from a generator of its own: the other columns are unchanged).
@@ -1157,8 +1161,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="upright: every recording starts upright (the neck reset between "
                          "recordings); cooled: from where the rig's wait for rest leaves it")
     ap.add_argument("--convection", choices=tuple(CONVECTION_LAWS), default="constant",
-                    help="the springs' h: constant, or natural convection in still air "
-                         "(h ~ dT^0.25, the drawn h at 50 K above ambient)")
+                    help="the springs' h: constant, or free convection in still air "
+                         "(natural: h ~ dT^0.25, thin_wire: dT^0.15; the drawn h at 50 K "
+                         "above ambient)")
     args = ap.parse_args(argv)
     if args.calibrate:
         print("current constants:")
