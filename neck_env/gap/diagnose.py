@@ -2109,8 +2109,7 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
             fitter, data, pairs, better, nominal, run.hold_rec, run.hold_mask, run.max_iter,
             lambda s: significant(s.vs_nominal) and (s.F > s.F_crit and beats_structure(s)
                                                      or warms(s)),
-            best_null, att.rival, reference_from_pairs=True, each_member=True)
-            if pairs else {})
+            best_null, att.rival, each_member=True) if pairs else {})
         for p in pairs:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s.vs_nominal.gap_before_deg:.3f} -> "
@@ -2390,10 +2389,10 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     accepted -- the forward step's pairs where an effect is responsible inside its range. Nor
     is one whose fit leaves the mechanics to their priors (``mechanics_unidentified``).
     ``reference_from_pairs``: a single-effect reference is the best held out of itself and
-    that effect as the pairs' fits left it alone (``singles_left``); ``each_member``: the
-    reference is also each member of the pair as the pairs' fits left it, so that a pair is
-    named only where both members are needed -- where no single is responsible, a pair with
-    one member that only lets the baseline move is the other member refitted (independent rig
+    that effect as the pairs' fits left it alone (``singles_left``); ``each_member`` (implies
+    it): the reference is also each member of the pair as the pairs' fits left it, so that a
+    pair is named only where both members are needed -- where no single is responsible, a pair
+    with one member that only lets the baseline move is the other member refitted (independent rig
     11608, a convection change on a wide baseline: beside it a supply limit left the held-out
     recordings as they were with it switched off, 0.293 deg either way, and the pair with a
     payload at its 0.45 kg bound ended at the same 0.293 deg; each pair beat its better single
@@ -2407,7 +2406,7 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     offs = iter(off_list)
     # each effect alone as the pairs' fits left it: the best of those held out, once per effect
     left = ({n: strongest(data, hold_mask, ps) for n, ps in singles_left(pairs, off_list).items()}
-            if reference_from_pairs else {})
+            if reference_from_pairs or each_member else {})
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         ref = reference(p)

@@ -106,7 +106,8 @@ ambient                     uniform 15 .. 35 C                     (meta.json: +
 +-1 C). ``convection="natural"`` (or ``"thin_wire"``) makes every spring's h follow free
 convection in still air, h ~ (T - T_amb)^0.25 (^0.15), the drawn h at 50 K above ambient,
 instead of a constant h: a real rig in a quiet room, with no effect. The truth reports every
-drawn value and its ratio, plus ``convection_W_m2K`` (W per m^2 of spring wire surface per K) and ``cooling_time_constant_s`` (m c / (h A) of spring A).
+drawn value and its ratio, plus ``convection_W_m2K`` (W per m^2 of spring wire surface per K)
+and ``cooling_time_constant_s`` (m c / (h A) of spring A).
 
 Effects (zero, one or two; magnitudes drawn within ``neck_env.effects.EFFECTS[name].params``)
 ---------------------------------------------------------------------------------------------
