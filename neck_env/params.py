@@ -143,10 +143,17 @@ class Thermal:
     terminal_conductance_W_K: float = 0.0  # one spring <-> its muscle's terminals
     terminal_heat_capacity_J_K: float = 1.5  # one muscle's terminals
     terminal_loss_W_K: float = 0.03  # one muscle's terminals -> air
+    # h ~ (T - T_amb)^n, equal to convection_W_m2K 50 K above ambient (``layout.CONV_REF_DT_K``):
+    # 0 is a constant h, as calibrated (a forced draft); free convection about a thin wire in
+    # still air goes as 0.15-0.25 (Morgan's Nu ~ Ra^n from Ra ~ 1 to 1e7)
+    convection_exponent: float = 0.0
 
     def __post_init__(self) -> None:
         _positive(self, "thermal", "convection_W_m2K", "terminal_heat_capacity_J_K")
-        _finite(self, "thermal", "ambient_C", "terminal_conductance_W_K", "terminal_loss_W_K")
+        _finite(self, "thermal", "ambient_C", "terminal_conductance_W_K", "terminal_loss_W_K",
+                "convection_exponent")
+        _require(0 <= self.convection_exponent <= 1, "thermal", "convection_exponent",
+                 self.convection_exponent, "must lie in [0, 1]")
         _require(-40 <= self.ambient_C <= 60, "thermal", "ambient_C", self.ambient_C,
                  "must lie in [-40, 60] deg C")
         for name in ("terminal_conductance_W_K", "terminal_loss_W_K"):
@@ -236,6 +243,7 @@ _BASE_PROVENANCE = {
     "thermal.terminal_conductance_W_K": "assumed: no heat path to the terminals (Table 1 cannot see one)",
     "thermal.terminal_heat_capacity_J_K": "assumed: brass crimps and a printed post, ~1.5 J/K",
     "thermal.terminal_loss_W_K": "assumed: a few cm^2 of terminal in still air",
+    "thermal.convection_exponent": "assumed: a constant h (Table 1 is heating-only data)",
     "backbone.length_m": "assumed",
     "backbone.bending_stiffness_Nm2": "assumed: serrated TPU",
     "backbone.torsional_stiffness_Nm2": "assumed: serrated TPU",

@@ -144,6 +144,33 @@ def test_cooling_tail_decays_with_the_wire_time_constant(params, pc):
     assert -1 / slope == pytest.approx(tau, rel=0.02)
 
 
+@pytest.mark.parametrize("n", [0.15, 0.25])
+def test_still_air_cools_a_spring_as_a_power_of_its_excess_temperature(params, n):
+    # free convection: h ~ dT^n about 50 K (``layout.CONV_REF_DT_K``), so without a phase
+    # change a tail's rate -d ln(dT)/dt is h A / (m c) at 50 K times (dT / 50 K)^n: 4^n faster
+    # at 100 than at 25 K above ambient, where a constant h keeps it. The reverse
+    # transformation is moved below ambient (even under the springs' stress), so none latent
+    # heat enters the tail
+    p0 = params.replace(material__Ms_C=-60.0, material__Mf_C=-70.0)
+    amb = p0.thermal.ambient_C
+    tau = cooling_time_constant_s(p0)
+
+    def rates(p):
+        tr, _ = simulate(constants_from_params(p), pulse_currents([8.0], 0, 6.0, 60.0))
+        t, dT, xi = tr.t_s, tr.T_C[:, 0, 0] - amb, tr.xi[:, 0, 0]
+        cooling = t > 6.2
+        assert np.all(xi[cooling] == 0.0), "the tail must stay austenite"
+        lam = -np.gradient(np.log(dT), t)
+        return {x: lam[np.flatnonzero(cooling & (dT < x))[0]] for x in (100.0, 50.0, 25.0)}
+
+    flat, still = rates(p0), rates(p0.replace(thermal__convection_exponent=n))
+    assert flat[100.0] * tau == pytest.approx(1.0, rel=0.02)  # a constant h: m c / (h A)
+    assert still[100.0] / still[25.0] == pytest.approx(4 ** n, rel=0.02)
+    assert still[50.0] * tau == pytest.approx(1.0, rel=0.02)  # the calibrated h at 50 K
+    with pytest.raises(ValueError, match="convection_exponent"):
+        params.replace(thermal__convection_exponent=-0.1)
+
+
 def _terminal_run(params, amps, seconds, dt=0.01):
     c = constants_from_params(params)
     x = initial_state(c, 1)

@@ -68,7 +68,11 @@ CUTOFF_C = 69  # spring temperature at which a muscle's current is cut (inf = no
 TERM_G = 70  # conductance of one spring to its muscle's terminals, W/K (0 = no terminal path)
 TERM_C = 71  # heat capacity of one muscle's terminals, J/K
 TERM_LOSS = 72  # their loss to the air, W/K
-N_CONST = 73
+# --- constants: how h depends on a spring's excess temperature ----------------------------------
+CONV_EXP = 73  # h ~ (T - T_amb)^n about CONV_REF_DT_K above ambient (0 = constant h)
+N_CONST = 74
+CONV_REF_DT_K = 50.0  # where a still-air h equals the calibrated h (``Thermal.convection_exponent``)
+CONV_MIN_DT_K = 1.0  # below this excess a still-air h is held (h -> 0 at ambient would never settle)
 
 # --- state ----------------------------------------------------------------------------------
 S_T = 0  # 0..2: spring temperature per muscle, deg C

@@ -38,7 +38,8 @@ from .compile import jit
 
 from ..params import NeckParams
 from .backbone import bend_angles, kinematics
-from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_GAIN, CONV_TCOEF, COS_PSI, COUPLING,
+from .layout import (AF, AMBIENT, ANCHOR, AS, C_A, C_M, CONV_EXP, CONV_GAIN, CONV_MIN_DT_K,
+                     CONV_REF_DT_K, CONV_TCOEF, COS_PSI, COUPLING,
                      CUTOFF_C,
                      INV_BAND_A, INV_BAND_M, INV_C_A, INV_C_M,
                      DAMPING, FATIGUE_MAX, FATIGUE_RATE, FORCE_PER_SHEAR, FREE_LEN, FRICTION,
@@ -110,6 +111,7 @@ def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarr
         row[TERM_G] = p.thermal.terminal_conductance_W_K
         row[TERM_C] = p.thermal.terminal_heat_capacity_J_K
         row[TERM_LOSS] = p.thermal.terminal_loss_W_K
+        row[CONV_EXP] = p.thermal.convection_exponent
     refresh_derived(out)
     return out
 
@@ -220,9 +222,12 @@ def advance_rig(c, x, cur, dt, n_sub, budget, out, scratch):
             coupling = 0.0
             for j in range(3):
                 coupling += temps[j] - temps[k]
-            if c[CONV_TCOEF] != 0.0:
-                hA = (max(c[HA] * c[CONV_GAIN] * (1.0 + c[CONV_TCOEF] * (temps[k] - c[AMBIENT])), 1e-9)
-                      + c[TERM_G])
+            if c[CONV_TCOEF] != 0.0 or c[CONV_EXP] != 0.0:
+                excess = temps[k] - c[AMBIENT]
+                h_rel = 1.0 + c[CONV_TCOEF] * excess
+                if c[CONV_EXP] != 0.0:
+                    h_rel *= (max(excess, CONV_MIN_DT_K) / CONV_REF_DT_K) ** c[CONV_EXP]
+                hA = max(c[HA] * c[CONV_GAIN] * h_rel, 1e-9) + c[TERM_G]
                 decay = math.exp(-dt * hA / c[HEAT_CAP])
             extra = c[COUPLING] * coupling + c[TERM_G] * (x[S_TERM + k] - c[AMBIENT])
             # Fatigue: the recoverable strain lost stays in the wire as permanent set (it
