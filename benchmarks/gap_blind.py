@@ -551,6 +551,9 @@ def main(argv=None) -> int:
     ap.add_argument("--fit-terminals", action="store_true",
                     help="diagnose with neck-gap --fit-terminals (the heat the springs drain into "
                     "their terminals fitted as part of the baseline)")
+    ap.add_argument("--still-air", action="store_true",
+                    help="diagnose with neck-gap --still-air (free convection a structural rival "
+                    "of a convection change)")
     ap.add_argument("--effect-free", type=int, default=None, metavar="N",
                     help="instead of the suite: N effect-free rigs at consecutive seeds from "
                     "--first-seed (the false-positive rate with an interval narrow enough to "
@@ -584,7 +587,8 @@ def main(argv=None) -> int:
     run_kwargs = {"hard": args.hard, "baseline": args.baseline, "generator": args.generator, **gen}
     # only when set: folders of earlier runs resume as they were
     options = [flag for flag, on in (("--fit-spring-modulus", args.fit_spring_modulus),
-                                     ("--fit-terminals", args.fit_terminals)) if on]
+                                     ("--fit-terminals", args.fit_terminals),
+                                     ("--still-air", args.still_air)) if on]
     if options:
         run_kwargs["options"] = options
     only = {int(x) for x in args.only.split(",")} if args.only else None

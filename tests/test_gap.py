@@ -682,6 +682,42 @@ def test_the_springs_temperatures_name_a_convection_the_tilt_leaves_to_friction(
     assert "heldout_T" not in {e["name"]: e for e in rep["effects"]}["backbone_friction"]
 
 
+def test_springs_in_still_air_are_a_rival_on_request_and_a_growth_named_without_says_so(tmp_path):
+    """An effect-free independent rig whose springs' h follows free convection (h ~ dT^0.25,
+    ``gap_blind.py --convection natural --effect-free``, seed 11923): a linear growth of h fits
+    it (0.0058/K, 46 % of the held-out tilt gap) and, against constant-h rivals only, is named;
+    its entry says still air explains it as well. With ``--still-air`` free convection is the
+    rival it matches: nothing is named, and the growth is listed ``ambiguous`` with it."""
+    from neck_env.gap import independent
+
+    truth = independent.generate(tmp_path / "ds", [], seed=11923, baseline="wide",
+                                 temperatures=True, convection="natural")
+    assert truth["baseline"]["h_exponent"] == 0.25 and truth["effects"] == {}
+
+    rep = _diagnose(tmp_path / "ds", tmp_path, "plain")
+    _check_contract(rep)
+    assert rep["verdict"] == ["convection_change"]
+    conv = rep["effects"][0]
+    still = conv["still_air"]
+    # still air does as well as the growth, and far better than a constant h
+    assert still["heldout_gap_still_air"] < 0.8 * conv["heldout_gap_before"], still
+    assert abs(still["heldout_gap_still_air"] - conv["heldout_gap_after"]) < 0.1 * conv["heldout_gap_before"]
+    assert "--still-air" in still["note"] and "cooling tail" in still["note"]
+    assert "still_air" not in {s["name"] for s in rep["structure"]}
+
+    rep = _diagnose(tmp_path / "ds", tmp_path, "still", ["--still-air"])
+    _check_contract(rep)
+    assert rep["verdict"] == []
+    best = max(rep["structure"], key=lambda s: s["heldout_reduction"])
+    assert best["name"] == "still_air" and best["heldout_reduction"] > 0.3, rep["structure"]
+    assert 0.15 <= best["params"]["h_exponent"] <= 1 / 3 + 1e-9
+    conv = {e["name"]: e for e in rep["effects"]}["convection_change"]
+    assert conv["significant_vs_nominal"] and not conv["significant"] and "still_air" not in conv
+    (a,) = [a for a in rep["ambiguous"] if a["effect"] == "convection_change"]
+    assert a["with"] == ["h_exponent"] and "cooling tail" in a["note"], a
+    assert a["heldout_gap_with"] == pytest.approx(best["heldout_gap_after"], abs=2e-4)
+
+
 # Dataset shapes the blind suites never use (a small faithful version of
 # benchmarks/gap_shapes.py): another IMU rate, four recordings, no meta.json, another lab's
 # pulse timing. ``named``: four recordings hold one out, and since the baseline fits a warm

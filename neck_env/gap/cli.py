@@ -55,6 +55,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "posts: a second, slower thermal mass) as part of the rig's baseline: "
                          "for springs crimped to metal, when h must be the air's alone "
                          "(docs/gap.md, 'Heat drained into the terminals')")
+    ap.add_argument("--still-air", action="store_true",
+                    help="the rig's springs cool in still air (no fan, no draft): free "
+                         "convection (h ~ dT^n, n up to 1/3) is a structural rival that a "
+                         "convection change must beat (docs/gap.md, 'Springs in still air')")
     ap.add_argument("--imu-gap-max-s", type=float, default=IMU_GAP_MAX_S, metavar="S",
                     help="fill missing theta_deg/phi_deg readings (empty or nan cells: a failed "
                          "IMU read) from their neighbours over gaps of at most S seconds; "
@@ -100,7 +104,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         dg = diagnose(without(ds, [b["recording"] for b in bent]), log=log,
-                      spring_modulus=args.fit_spring_modulus, terminals=args.fit_terminals)
+                      spring_modulus=args.fit_spring_modulus, terminals=args.fit_terminals,
+                      still_air=args.still_air)
         rep = write_outputs(dg, args.json, dataset_path=Path(args.dataset),
                             make_plots=not args.no_plots, extra={"not_at_rest": bent,
                                                              "imu_gaps_filled": filled})

@@ -14,7 +14,7 @@ import numpy as np
 from .. import effects as fx
 from . import currents, repeats
 from . import diagnose as D
-from .model import HEAT_CAPACITY_PRIOR_SIGMA, STRUCTURE, clip_to_catalogue
+from .model import ALL_STRUCTURE, HEAT_CAPACITY_PRIOR_SIGMA, clip_to_catalogue
 
 REPORT_VERSION = 1
 
@@ -196,6 +196,11 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             **_built_up(s, data.names),
             **_warming(s),
             **_temperatures(s),
+            # a named growth that still air, fitted as a check, matches (``still_air_caveat``)
+            **({"still_air": {"h_exponent": _r(dg.still_air["h_exponent"], 3),
+                              "heldout_gap_still_air": _r(dg.still_air["heldout_gap_with"]),
+                              "note": dg.still_air["note"]}}
+               if dg.still_air is not None and c.name == dg.still_air["effect"] else {}),
         })
     pairs = []
     for p in dg.pairs:
@@ -238,7 +243,10 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "ambiguous": [{"effect": a["effect"], "with": list(a["with"]), "note": a["note"],
                        "heldout_gap_nominal": _r(a["heldout_gap_nominal"]),
                        "heldout_gap_effect": _r(a["heldout_gap_effect"]),
-                       "effect_size_deg": _r(a["effect_size_deg"], 3)} for a in dg.ambiguous],
+                       "effect_size_deg": _r(a["effect_size_deg"], 3),
+                       # the rival's own held-out gap where it is not a baseline shift
+                       **({"heldout_gap_with": _r(a["heldout_gap_with"])}
+                          if "heldout_gap_with" in a else {})} for a in dg.ambiguous],
         "unexplained_reasons": list(dg.reasons),
         "measured_currents": (dg.measured_currents.to_dict()
                               if dg.measured_currents is not None else None),
@@ -254,7 +262,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
         "effects": effects,
         "pairs": pairs,
         "structure": [{"name": c.name.split(":", 1)[1],
-                       "params": {sp.key: _r(c.values[sp.key], 6) for sp in STRUCTURE[c.name]},
+                       "params": {sp.key: _r(c.values[sp.key], 6) for sp in ALL_STRUCTURE[c.name]},
                        "heldout_gap_before": _r(dg.null_cmp[c.name].gap_before_deg),
                        "heldout_gap_after": _r(dg.null_cmp[c.name].gap_after_deg),
                        "heldout_reduction": _r(dg.null_cmp[c.name].reduction)} for c in dg.nulls],
@@ -449,7 +457,11 @@ def text_report(rep: dict) -> str:
     v = rep["verdict"]
     L.append(f"Verdict: {', '.join(v) if v else 'no catalogued effect is significant'}")
     for a in rep.get("ambiguous", []):
-        L.append(f"  ambiguous: {a['effect']} vs baseline {', '.join(a['with'])}: {a['note']}")
+        rival = "structure" if "heldout_gap_with" in a else "baseline"
+        L.append(f"  ambiguous: {a['effect']} vs {rival} {', '.join(a['with'])}: {a['note']}")
+    for e in rep.get("effects", []):
+        if "still_air" in e:
+            L.append(f"  but {e['name']} may be still air: {e['still_air']['note']}")
     if rep.get("measured_currents"):
         L.extend(currents.describe(rep["measured_currents"], indent="  "))
         for e, what in rep.get("verdict_by_currents", {}).items():
