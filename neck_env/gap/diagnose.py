@@ -62,8 +62,7 @@ from .fit import Candidate, Fitter, covariance
 from .model import (ALL_STRUCTURE, DRAFT_FROM, EFFECT_OFF, EFFECT_SPECS,
                     HEAT_CAPACITY_PRIOR_SIGMA, SCANNED, STILL_AIR, SUPPLY_OFF_V, Model, ParamSpec,
                     Prediction, Prepared, drift_specs, gap_of, is_drift_key, prepare,
-                    residual_parts,
-                    split_key, switched_off, tilt_vec)
+                    residual_parts, split_key, switched_off, tilt_vec)
 from .rest import MIN_REST_SAMPLES, settled_rest
 
 # held-out F test level, per effect. The effective sample count (AR(1)) is conservative: on 40
@@ -1925,7 +1924,7 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
     run.lap("scan_s")
     singles = [effect_candidate(model, [n], nom_vals, starts[n][0]) for n in fx.CATALOGUE]
     nulls = [structure_candidate(model, n, nom_vals) for n in model.structures]
-    # still air no rival: fitted as the check ``still_air_ambiguity`` reads
+    # still air no rival: fitted as the check ``still_air_caveat`` reads
     check = ([] if STILL_AIR in model.structures
              else [structure_candidate(model, STILL_AIR, nom_vals)])
     run.fitter.run(singles + nulls + check, max_iter=run.max_iter)
