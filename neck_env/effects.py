@@ -148,8 +148,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in [
         "every time constant changing from one recording on (a draft starts). A constant gain "
         "from the start is the same as a different h: the diagnosis calls it a recalibration "
         "(ambiguous with h), not an effect. Springs in still air grow their h by themselves "
-        "(free convection, h ~ dT^0.15-0.33): the diagnosis fits that law as a structural "
-        "rival, and names only a growth that beats it (or a draft)",
+        "(free convection, h ~ dT^0.15-0.33): the diagnosis fits that law beside it; a named "
+        "growth it matches says so, and with --still-air only a growth that beats it (or a "
+        "draft) is named",
         {"gain": (0.4, 2.5, "-", "h multiplier while the draft blows"),
          "tcoef_per_K": (0.0, 0.012, "1/K", "relative change of h per K above ambient"),
          "onset_s": (0.0, 3600.0, "s", "recorded time (dataset clock, recordings back to back) "

@@ -1256,6 +1256,12 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
     return out
 
 
+def effect_size_deg(on: Prediction, off: Prediction, mask: np.ndarray) -> float:
+    """What an effect does in its own fit: the RMS tilt between it on and switched off."""
+    return float(np.sqrt(np.mean((on.tilt_x - off.tilt_x)[mask] ** 2
+                                 + (on.tilt_y - off.tilt_y)[mask] ** 2)))
+
+
 def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequence[Candidate],
               single_cmp: dict[str, Comparison], verdict: Sequence[str],
               offs: dict[str, Prediction]) -> list[dict]:
@@ -1278,8 +1284,7 @@ def ambiguity(model: Model, fitter: Fitter, nominal: Candidate, singles: Sequenc
     out = []
     for c in cands:
         name, off = c.effects[0], offs[c.name]
-        size = float(np.sqrt(np.mean((c.pred.tilt_x - off.tilt_x)[m] ** 2
-                                     + (c.pred.tilt_y - off.tilt_y)[m] ** 2)))
+        size = effect_size_deg(c.pred, off, m)
         if size < AMBIG_SIZE_DEG:
             continue
         moved = []
@@ -1367,8 +1372,7 @@ def _still_air_entry(data: Prepared, att: _Attribution, still_air: Candidate,
     c, s = _convection_single(att)
     still = gap_of(data, still_air.pred, hold_mask)["gap"]
     off = att.offs[c.name]
-    size = float(np.sqrt(np.mean((c.pred.tilt_x - off.tilt_x)[fit_mask] ** 2
-                                 + (c.pred.tilt_y - off.tilt_y)[fit_mask] ** 2)))
+    size = effect_size_deg(c.pred, off, fit_mask)
     n = still_air.values["h_exponent"]
     tcoef = c.values.get("convection_change.tcoef_per_K", 0.0)
     return {
