@@ -17,7 +17,7 @@ import pytest
 import neck_env  # noqa: F401  (registers NeckTrack-v0)
 from neck_env import effects as fx
 from neck_env.gap.cli import main as gap_main
-from neck_env.gap.model import tilt_vec
+from neck_env.gap.replay import replay_dataset
 from neck_env.gap.synthetic import generate
 from neck_env.params import NeckParams, default_params
 from neck_env.physics import layout as L
@@ -56,6 +56,15 @@ def _check_contract(rep: dict) -> None:
     for loc in rep["localization"]:
         assert loc["signal"] in ("theta", "phi", "temperature")
         assert loc["phase"] in ("heating", "cooling", "rest")
+    # the export carries a structure only where one was significant held out: the best one
+    x = rep["export"]
+    if x["structure"] is not None:
+        best = min(rep["structure"], key=lambda c: c["heldout_gap_after"])
+        assert x["structure"] == best["name"] and set(x["params"]) == set(best["params"]), x
+        assert x["heldout_gap_structure_deg"] == pytest.approx(best["heldout_gap_after"], abs=1e-4), (x, best)
+        assert x["exported"] == (x["gap_all_recordings_with_deg"] < x["gap_all_recordings_without_deg"])
+    else:
+        assert x["exported"] is False
     assert [a["effect"] for a in rep["absorption"]] == list(fx.CATALOGUE)
     for a in rep["absorption"]:
         assert a["heldout_size_deg"] >= 0 and a["heldout_left_deg"] >= 0
@@ -281,34 +290,25 @@ def test_paper_phi_offset_is_imu_misalignment(tmp_path):
     env.close()
 
 
-def _replay_gap_deg(ds: Path, params, offset_deg: np.ndarray, n_rec: int = 4) -> np.ndarray:
-    """RMS tilt error (per component, deg) of NeckTrack-v0 replaying the first recordings'
-    commanded currents against their measured tilt: the env at the recording's sample period
-    (a 20 Hz step moves a switching edge by up to 40 ms, which a short pulse feels), without
-    the task's energy budget and over-temperature cut, the IMU's zero offset added."""
-    out = []
-    for rec in read_dataset(ds).recordings[:n_rec]:
-        env = gym.make("NeckTrack-v0", params=params, effects={},
-                       dt=float(np.median(np.diff(rec.t))), energy_budget_J=float("inf"),
-                       cutoff_C=float("inf"))
-        env.reset(seed=0)
-        # a row's current holds until the next row; the pose is compared at that next row
-        infos = [env.step(rec.currents_A[k].astype(np.float32))[4] for k in range(rec.n - 1)]
-        env.close()
-        sim = np.stack(tilt_vec(np.array([i["theta_deg"] for i in infos]),
-                                np.array([i["phi_deg"] for i in infos])), -1) + offset_deg
-        meas = np.stack(tilt_vec(rec.theta_deg[1:], rec.phi_deg[1:]), -1)
-        out.append(float(np.sqrt(np.mean((sim - meas) ** 2))))
-    return np.array(out)
-
-
 def _replay_export_and_defaults(ds: Path, rep: dict) -> tuple[np.ndarray, np.ndarray]:
-    """``_replay_gap_deg`` of an effect-free rig's export (with the fitted IMU zero offset)
-    and of the defaults."""
-    cal = rep["calibration"]["params"]
-    offset = np.array([cal["offset_x_deg"]["value"], cal["offset_y_deg"]["value"]])
-    return (_replay_gap_deg(ds, rep["outputs"]["params"], offset),
-            _replay_gap_deg(ds, None, np.zeros(2)))
+    """Replay errors (per recording, deg) of the first four recordings in NeckTrack-v0 built
+    from the report's export (with its fitted IMU zero offset) and from the defaults."""
+    out = replay_dataset(ds, rep, recordings=4)
+    return out["exported_deg"], out["defaults_deg"]
+
+
+def test_replay_refuses_a_report_without_an_export_and_a_missing_dataset(tmp_path, capsys):
+    from neck_env.gap.replay import main as replay_main
+
+    ds = tmp_path / "ds"
+    _write_pulses(ds, default_params(), [([0], 6.0)], length_s=4.0)
+    rep = tmp_path / "report.json"
+    rep.write_text(json.dumps({"verdict": [], "outputs": {}}))
+    assert replay_main([str(ds), str(rep)]) == 2
+    assert "outputs.params" in capsys.readouterr().err
+    rep.write_text(json.dumps({"verdict": [], "outputs": {"params": str(tmp_path / "p.json")}}))
+    assert replay_main([str(tmp_path / "nowhere"), str(rep)]) == 2
+    assert "nowhere" in capsys.readouterr().err
 
 
 # A small faithful version of benchmarks/gap_blind.py: the same generator, random magnitudes in
@@ -687,7 +687,8 @@ def test_springs_in_still_air_are_a_rival_on_request_and_a_growth_named_without_
     ``gap_blind.py --convection natural --effect-free``, seed 11923): a linear growth of h fits
     it (0.0058/K, 46 % of the held-out tilt gap) and, against constant-h rivals only, is named;
     its entry says still air explains it as well. With ``--still-air`` free convection is the
-    rival it matches: nothing is named, and the growth is listed ``ambiguous`` with it."""
+    rival it matches: nothing is named, the growth is listed ``ambiguous`` with it, and the
+    export carries still air."""
     from neck_env.gap import independent
 
     truth = independent.generate(tmp_path / "ds", [], seed=11923, baseline="wide",
@@ -716,6 +717,20 @@ def test_springs_in_still_air_are_a_rival_on_request_and_a_growth_named_without_
     (a,) = [a for a in rep["ambiguous"] if a["effect"] == "convection_change"]
     assert a["with"] == ["h_exponent"] and "cooling tail" in a["note"], a
     assert a["heldout_gap_with"] == pytest.approx(best["heldout_gap_after"], abs=2e-4)
+    # still air is no effect, but the rig's structure: the export carries it, so NeckTrack-v0
+    # built from it cools as this rig does, on recordings the diagnosis never saw (the same
+    # rig, another lab's pulse timing)
+    x = rep["export"]
+    assert x["structure"] == "still_air" and x["exported"], x
+    assert x["gap_all_recordings_with_deg"] < x["gap_all_recordings_without_deg"], x
+    n = NeckParams.load(rep["outputs"]["params"]).thermal.convection_exponent
+    assert n == pytest.approx(x["params"]["h_exponent"], abs=1e-6) and 0.15 <= n <= 1 / 3 + 1e-9
+    independent.generate(tmp_path / "unseen", [], seed=11923, baseline="wide", protocol="drawn",
+                         temperatures=True, convection="natural", n_recordings=4)
+    exported, defaults = _replay_export_and_defaults(tmp_path / "unseen", rep)
+    assert np.median(exported) < 2 * best["heldout_gap_after"], (exported, best)
+    assert np.sqrt(np.mean(exported ** 2)) < 0.25 * np.sqrt(np.mean(defaults ** 2)), (
+        exported, defaults)
 
 
 # Dataset shapes the blind suites never use (a small faithful version of

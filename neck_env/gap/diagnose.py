@@ -1492,6 +1492,8 @@ class Diagnosis:
     repeated: repeats.RepeatCheck | None = None  # where the dataset repeats an input
     by_repeats: dict = field(default_factory=dict)  # effect -> "named" by them
     still_air: dict | None = None  # ``still_air_caveat``: a named convection still air matches
+    exported: Candidate | None = None  # what REPORT_params/effects.json carry (``_export``)
+    export: dict | None = None  # the report's ``export``: the structure it carries, and why
 
 
 def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
@@ -2309,9 +2311,12 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
     final_nominal = Candidate("nominal", (), list(model.nominal), u=nominal.u.copy())
     final = (effect_candidate(model, verdict, {}, verdict_c.setting()) if verdict
              else Candidate("nominal", (), list(model.nominal), u=nominal.u.copy()))
-    all_fitter.run([final_nominal, final] if verdict else [final_nominal], max_iter=run.max_iter)
+    structured = _structure_to_export(model, att, verdict, verdict_c)
+    all_fitter.run([final_nominal, *([final] if verdict else []),
+                    *([structured] if structured is not None else [])], max_iter=run.max_iter)
     if not verdict:
         final = final_nominal
+    exported, export = _export(data, att, final, structured)
     # what is left to explain includes a drift fitted as a nuisance: predict without it
     shown = [{k: v for k, v in c.setting().items() if not is_drift_key(k)}
              for c in (final_nominal, final)]
@@ -2405,7 +2410,42 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                      ambiguous=dec.ambiguous, nulls=att.nulls, null_cmp=att.null_cmp,
                      absorption=absorbed, moved_deg=run.moved_deg, measured_currents=measured,
                      by_currents=dec.by_currents, repeated=repeated, by_repeats=dec.by_repeats,
-                     still_air=caveat)
+                     still_air=caveat, exported=exported, export=export)
+
+
+def _structure_to_export(model: Model, att: "_Attribution", verdict: Sequence[str],
+                         verdict_c: Candidate) -> Candidate | None:
+    """The verdict model with the best generic structural discrepancy on top, started from the
+    verdict's fit and the discrepancy's own value, when that discrepancy is a significant
+    improvement on the nominal refit held out (``_Attribution.rival``); else None."""
+    if not att.rival:
+        return None
+    name = att.best_null.name
+    own = {s.key: att.best_null.values[s.key] for s in ALL_STRUCTURE[name]}
+    return structure_candidate(model, name, {**verdict_c.setting(), **own}, effects=verdict)
+
+
+def _export(data: Prepared, att: "_Attribution", final: Candidate,
+            structured: Candidate | None) -> tuple[Candidate, dict | None]:
+    """11. What the corrected-model files carry: the verdict model refitted on every recording,
+    with the best structural discrepancy on top where that discrepancy was significant held
+    out and, refitted with the verdict on every recording, fits them better. A rig's structure
+    is no effect to name, but NeckTrack-v0 built from the files should move as the rig does, and
+    a discrepancy that predicts held-out recordings better makes it do so."""
+    if structured is None:
+        return final, None
+    every = np.ones(data.meas_theta.shape, bool)
+    on_all = compare(data, final.pred, structured.pred, every)
+    held = att.null_cmp[att.best_null.name]
+    name = att.best_null.name
+    info = {"structure": name.split(":", 1)[1],
+            "params": {s.key: structured.values[s.key] for s in ALL_STRUCTURE[name]},
+            "heldout_gap_nominal_deg": held.gap_before_deg,
+            "heldout_gap_structure_deg": held.gap_after_deg,
+            "gap_all_recordings_without_deg": on_all.gap_before_deg,
+            "gap_all_recordings_with_deg": on_all.gap_after_deg,
+            "exported": bool(on_all.gap_after_deg < on_all.gap_before_deg)}
+    return (structured if info["exported"] else final), info
 
 
 THERMAL_KEYS = ("cooling_time_constant_s", "convection_W_m2K",
