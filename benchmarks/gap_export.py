@@ -12,13 +12,15 @@ streams) then records another lab's pulse timing (protocol ``drawn``), and each 
 recordings is replayed in ``NeckTrack-v0`` (``neck_env.gap.replay``) built from
 
 * the export as written (``REPORT_params.json``: the baseline, the verdict's effects and, where
-  one was significant held out, the rig's structural discrepancy: ``docs/gap.md`` item 11),
-* the verdict model alone (the export before structure was carried), and
+  the held-out data showed them, the rig's structural discrepancy and the terminals' heat path:
+  ``docs/gap.md`` method item 11),
+* the verdict model alone on the plain baseline (the export before it carried either), and
 * the defaults.
 
-Printed per dataset: the structure exported (if any), the median replay error per recording of
-each, and over the datasets the paired ratio export / verdict-only (median, and the
-datasets where carrying the structure made the replay worse).
+Printed per dataset: what the export carried beyond the verdict (a structural discrepancy, the
+terminals' heat path), the median replay error per recording of each model, in the tilt and,
+through the fitted thermistor lag, in the springs' temperatures; over the datasets where it
+carried something, the paired ratio export / verdict only (median, range, how often worse).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import argparse
 import contextlib
 import io
 import json
+import math
 import statistics
 import sys
 import time
@@ -37,7 +40,7 @@ from scipy.stats import wilcoxon
 
 from neck_env.gap import diagnose as D
 from neck_env.gap import report as R
-from neck_env.gap.replay import replay_gap_deg, report_offset_deg
+from neck_env.gap.replay import replay, report_offset_deg, report_thermistor_lag_s
 from neck_env.recording import read_dataset
 
 # rigs written apart from the model, whose IMU zero offset (the mount) is the rig's: the same
@@ -69,44 +72,58 @@ def run_seed(a: argparse.Namespace, seed: int, root: Path) -> dict:
     effects = json.loads(Path(rep["outputs"]["effects"]).read_text())
     effects.pop("imu_misalignment", None)  # the replay compares the true tilt (replay.py)
     verdict_only = dg.model.params_of(dg.final.values)
-    off = report_offset_deg(rep)
+    off, lag = report_offset_deg(rep), report_thermistor_lag_s(rep)
     recs = read_dataset(unseen).recordings
+    runs = {"exported": [replay(r, rep["outputs"]["params"], effects, off, lag) for r in recs],
+            "verdict_only": [replay(r, verdict_only, effects, off, lag) for r in recs],
+            "defaults": [replay(r, None, None, (0.0, 0.0), lag) for r in recs]}
     out = {"seed": seed, "truth": truth["effects"], "verdict": rep["verdict"],
            "export": rep["export"], "seconds": seconds,
-           "exported_deg": [replay_gap_deg(r, rep["outputs"]["params"], effects, off) for r in recs],
-           "verdict_only_deg": [replay_gap_deg(r, verdict_only, effects, off) for r in recs],
-           "defaults_deg": [replay_gap_deg(r, None) for r in recs]}
+           **{f"{k}_deg": [x["tilt_deg"] for x in v] for k, v in runs.items()},
+           **{f"{k}_C": [x["temperature_C"] for x in v] for k, v in runs.items()}}
     done.write_text(json.dumps(out, indent=1))
     return out
 
 
+def _carried(x: dict) -> str:
+    parts = []
+    if x.get("structure") is not None:
+        parts.append(f"{x['structure']} " + ", ".join(f"{k} {v:.3g}" for k, v in x["params"].items()))
+    if x.get("terminals") is not None:
+        parts.append(f"terminals {x['terminals']['terminal_share']:.2f}")
+    return "; ".join(parts) if parts and x["exported"] else "none"
+
+
 def summarize(results: list[dict]) -> str:
-    L = [f"{'seed':>6s} {'verdict':24s} {'structure exported':34s} {'export':>7s} "
-         f"{'verdict only':>12s} {'defaults':>8s}   (median replay RMS per recording, deg)"]
-    ratios = []
+    L = [f"{'seed':>6s} {'verdict':22s} {'carried beyond the verdict':34s} "
+         f"{'tilt (deg): export':>18s} {'verdict only':>12s} {'defaults':>8s} "
+         f"{'T (C): export':>13s} {'verdict only':>12s} {'defaults':>8s}   (medians per recording)"]
+    med = {}
     for r in results:
-        x = r["export"]
-        st = (f"{x['structure']} " + ", ".join(f"{k} {v:.3g}" for k, v in x["params"].items())
-              if x["structure"] is not None and x["exported"] else "none")
-        e, v, d = (float(np.median(r[k])) for k in ("exported_deg", "verdict_only_deg", "defaults_deg"))
-        L.append(f"{r['seed']:>6d} {','.join(r['verdict']) or '-':24s} {st:34s} {e:7.3f} {v:12.3f} {d:8.3f}")
-        if x["structure"] is not None and x["exported"]:
-            ratios.append((e, v))
+        m = {k: float(np.median(r[k])) for k in ("exported_deg", "verdict_only_deg", "defaults_deg")}
+        m.update({k: float(np.median(r[k])) if r[k] and r[k][0] is not None else math.nan
+                  for k in ("exported_C", "verdict_only_C", "defaults_C")})
+        med[r["seed"]] = m
+        L.append(f"{r['seed']:>6d} {','.join(r['verdict']) or '-':22s} {_carried(r['export']):34s} "
+                 f"{m['exported_deg']:18.3f} {m['verdict_only_deg']:12.3f} {m['defaults_deg']:8.3f} "
+                 f"{m['exported_C']:13.2f} {m['verdict_only_C']:12.2f} {m['defaults_C']:8.2f}")
     n = len(results)
-    L.append(f"structure exported on {len(ratios)}/{n} datasets")
-    if ratios:
-        q = [e / v for e, v in ratios]
-        worse = sum(e > v for e, v in ratios)
-        L.append(f"  median replay error, export / verdict only: median ratio {statistics.median(q):.3f} "
-                 f"(range {min(q):.3f}-{max(q):.3f}); worse on {worse}/{len(ratios)}")
-        if len(ratios) >= 6:
-            p = wilcoxon([e for e, _ in ratios], [v for _, v in ratios]).pvalue
-            L.append(f"  paired Wilcoxon signed-rank p = {p:.3g}")
-    alle = [float(np.median(r["exported_deg"])) for r in results]
-    alld = [float(np.median(r["defaults_deg"])) for r in results]
-    L.append(f"over all {n}: median of the per-dataset medians, export {statistics.median(alle):.3f} deg, "
-             f"defaults {statistics.median(alld):.3f} deg; diagnosis {statistics.median(r['seconds'] for r in results):.0f} s "
-             f"per dataset (median)")
+    carried = [r["seed"] for r in results if _carried(r["export"]) != "none"]
+    L.append(f"carried beyond the verdict on {len(carried)}/{n} datasets")
+    for unit, k in (("tilt", "deg"), ("temperatures", "C")):
+        pairs = [(med[s][f"exported_{k}"], med[s][f"verdict_only_{k}"]) for s in carried
+                 if math.isfinite(med[s][f"exported_{k}"])]
+        if not pairs:
+            continue
+        q = [e / v for e, v in pairs]
+        L.append(f"  {unit}: replay error export / verdict only, median ratio {statistics.median(q):.3f} "
+                 f"(range {min(q):.3f}-{max(q):.3f}); worse on {sum(e > v for e, v in pairs)}/{len(pairs)}"
+                 + (f"; paired Wilcoxon p = {wilcoxon([e for e, _ in pairs], [v for _, v in pairs]).pvalue:.3g}"
+                    if len(pairs) >= 6 else ""))
+    L.append(f"over all {n}: median of the per-dataset medians, tilt export "
+             f"{statistics.median(m['exported_deg'] for m in med.values()):.3f} deg against the "
+             f"defaults' {statistics.median(m['defaults_deg'] for m in med.values()):.3f} deg; "
+             f"diagnosis {statistics.median(r['seconds'] for r in results):.0f} s per dataset (median)")
     return "\n".join(L)
 
 

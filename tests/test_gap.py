@@ -63,8 +63,9 @@ def _check_contract(rep: dict) -> None:
         assert x["structure"] == best["name"] and set(x["params"]) == set(best["params"]), x
         assert x["heldout_gap_structure_deg"] == pytest.approx(best["heldout_gap_after"], abs=1e-4), (x, best)
         assert x["exported"] == (x["gap_all_recordings_with_deg"] < x["gap_all_recordings_without_deg"])
-    else:
-        assert x["exported"] is False
+    else:  # only the terminals' path the held-out temperatures selected is carried then
+        assert x["exported"] == (x["terminals"] is not None)
+    assert (x["terminals"] is not None) == bool((rep["calibration"].get("terminals") or {}).get("selected"))
     assert [a["effect"] for a in rep["absorption"]] == list(fx.CATALOGUE)
     for a in rep["absorption"]:
         assert a["heldout_size_deg"] >= 0 and a["heldout_left_deg"] >= 0

@@ -2311,12 +2311,14 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
     final_nominal = Candidate("nominal", (), list(model.nominal), u=nominal.u.copy())
     final = (effect_candidate(model, verdict, {}, verdict_c.setting()) if verdict
              else Candidate("nominal", (), list(model.nominal), u=nominal.u.copy()))
-    structured = _structure_to_export(model, att, verdict, verdict_c)
+    carried = _export_candidate(run, att, terms, verdict, verdict_c)
+    # fitted in the lockstep run of the model it belongs to (the terminals' has its own)
+    on_terminals = terms is not None and terms.selected
     all_fitter.run([final_nominal, *([final] if verdict else []),
-                    *([structured] if structured is not None else [])], max_iter=run.max_iter)
+                    *([carried] if carried is not None and not on_terminals else [])],
+                   max_iter=run.max_iter)
     if not verdict:
         final = final_nominal
-    exported, export = _export(data, att, final, structured)
     # what is left to explain includes a drift fitted as a nuisance: predict without it
     shown = [{k: v for k, v in c.setting().items() if not is_drift_key(k)}
              for c in (final_nominal, final)]
@@ -2325,7 +2327,9 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
     if verdict:
         calibration["corrected"] = calibration_summary(all_fitter, final)
     if terms is not None:
-        calibration["terminals"] = _terminals_summary(terms, calibration, run)
+        calibration["terminals"] = _terminals_summary(
+            terms, calibration, run, also=[carried] if on_terminals else [])
+    exported, export = _export(data, att, terms, final, carried)
     run.lap("final_fit_s")
     # localization of the plain nominal refit: a drift nuisance must not hide where the gap is
     res_nom = full_residuals(data, base.full_plain)
@@ -2413,49 +2417,68 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                      still_air=caveat, exported=exported, export=export)
 
 
-def _structure_to_export(model: Model, att: "_Attribution", verdict: Sequence[str],
-                         verdict_c: Candidate) -> Candidate | None:
-    """The verdict model with the best generic structural discrepancy on top, started from the
-    verdict's fit and the discrepancy's own value, when that discrepancy is a significant
-    improvement on the nominal refit held out (``_Attribution.rival``); else None."""
-    if not att.rival:
+def _export_candidate(run: _Run, att: "_Attribution", terms: "_Terminals | None",
+                      verdict: Sequence[str], verdict_c: Candidate) -> Candidate | None:
+    """The model the corrected-model files should carry beyond the verdict, unfitted: the
+    verdict with the best generic structural discrepancy on top where that discrepancy was a
+    significant improvement on the nominal refit held out (``_Attribution.rival``), on the
+    baseline with the terminals' heat path where the held-out temperatures needed it
+    (``_Terminals.selected``). Started from the verdict's fit, the discrepancy's and the path's
+    own values. None when neither holds."""
+    rival = att.rival
+    path = terms is not None and terms.selected
+    if not (rival or path):
         return None
+    model = terms.model if path else run.model
+    vals = {**verdict_c.setting()}
+    if path:
+        vals.update({k: v for k, v in terms.cand.values.items() if k.startswith("terminal_")})
+    if not rival:
+        return effect_candidate(model, verdict, vals)
     name = att.best_null.name
-    own = {s.key: att.best_null.values[s.key] for s in ALL_STRUCTURE[name]}
-    return structure_candidate(model, name, {**verdict_c.setting(), **own}, effects=verdict)
+    vals.update({s.key: att.best_null.values[s.key] for s in ALL_STRUCTURE[name]})
+    return structure_candidate(model, name, vals, effects=verdict)
 
 
-def _export(data: Prepared, att: "_Attribution", final: Candidate,
-            structured: Candidate | None) -> tuple[Candidate, dict | None]:
-    """11. What the corrected-model files carry: the verdict model refitted on every recording,
-    with the best structural discrepancy on top where that discrepancy was significant held
-    out and, refitted with the verdict on every recording, fits them better. A rig's structure
-    is no effect to name, but NeckTrack-v0 built from the files should move as the rig does, and
-    a discrepancy that predicts held-out recordings better makes it do so."""
-    if structured is None:
+def _export(data: Prepared, att: "_Attribution", terms: "_Terminals | None", final: Candidate,
+            carried: Candidate | None) -> tuple[Candidate, dict | None]:
+    """11. What the corrected-model files carry (``_export_candidate``, fitted on every
+    recording). A rig's structure or its terminals are no effect to name, but NeckTrack-v0
+    built from the files should move and cool as the rig does. The path is carried as the
+    held-out temperatures selected it; a structural discrepancy only when, refitted with the
+    verdict on every recording, it also fits their tilt better."""
+    if carried is None:
         return final, None
     every = np.ones(data.meas_theta.shape, bool)
-    on_all = compare(data, final.pred, structured.pred, every)
-    held = att.null_cmp[att.best_null.name]
-    name = att.best_null.name
-    info = {"structure": name.split(":", 1)[1],
-            "params": {s.key: structured.values[s.key] for s in ALL_STRUCTURE[name]},
-            "heldout_gap_nominal_deg": held.gap_before_deg,
-            "heldout_gap_structure_deg": held.gap_after_deg,
+    on_all = compare(data, final.pred, carried.pred, every)
+    path = terms is not None and terms.selected
+    info = {"structure": None, "params": {},
+            "heldout_gap_nominal_deg": None, "heldout_gap_structure_deg": None,
+            "terminals": ({k: carried.values[k] for k in ("terminal_share", "terminal_tau_s")}
+                          if path else None),
             "gap_all_recordings_without_deg": on_all.gap_before_deg,
             "gap_all_recordings_with_deg": on_all.gap_after_deg,
-            "exported": bool(on_all.gap_after_deg < on_all.gap_before_deg)}
-    return (structured if info["exported"] else final), info
+            "exported": bool(path or on_all.gap_after_deg < on_all.gap_before_deg)}
+    if att.rival:
+        name = att.best_null.name
+        held = att.null_cmp[name]
+        info.update(structure=name.split(":", 1)[1],
+                    params={s.key: carried.values[s.key] for s in ALL_STRUCTURE[name]},
+                    heldout_gap_nominal_deg=held.gap_before_deg,
+                    heldout_gap_structure_deg=held.gap_after_deg)
+    return (carried if info["exported"] else final), info
 
 
 THERMAL_KEYS = ("cooling_time_constant_s", "convection_W_m2K",
                 "cooling_time_constant_cold_terminals_s")
 
 
-def _terminals_summary(terms: _Terminals, calibration: dict, run: _Run) -> dict:
+def _terminals_summary(terms: _Terminals, calibration: dict, run: _Run,
+                       also: Sequence[Candidate] = ()) -> dict:
     """The report's ``calibration.terminals``: the check's evidence and, when selected, the
     terminal baseline refitted on every recording, whose h and time constants then replace
-    the plain baseline's in ``calibration`` (kept under ``without_terminals``)."""
+    the plain baseline's in ``calibration`` (kept under ``without_terminals``). ``also``:
+    candidates of the terminals' model fitted in the same lockstep run (the export's)."""
     t = terms.temperatures
     out = {"selected": terms.selected,
            "heldout_T_rms_before_C": t.rms_before_C if t else None,
@@ -2469,7 +2492,7 @@ def _terminals_summary(terms: _Terminals, calibration: dict, run: _Run) -> dict:
     if terms.selected:
         fitter = Fitter(terms.model, np.ones_like(run.fit_mask))
         cand = Candidate("nominal", (), list(terms.model.nominal), u=terms.cand.u.copy())
-        fitter.run([cand], max_iter=run.max_iter)
+        fitter.run([cand, *also], max_iter=run.max_iter)
         cal = calibration_summary(fitter, cand)
         out["params"] = {k: cal["params"][k] for k in ("terminal_share", "terminal_tau_s",
                                                          "h_scale", "heat_capacity_scale")}

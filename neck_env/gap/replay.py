@@ -10,7 +10,10 @@ by up to 40 ms, which a short pulse feels) and without the task's energy budget 
 over-temperature cut; each row's currents hold until the next row, where the pose is compared.
 The env's true tilt (``info``) plus the report's fitted IMU zero offset is compared with the
 recorded tilt: a sensor effect in the files (``imu_misalignment``) changes what the env's IMU
-reads, not ``info``, so the replay leaves it out.
+reads, not ``info``, so the replay leaves it out. Where the recordings hold thermistor columns,
+the springs' temperatures (``info``, read through the report's fitted thermistor lag) are
+compared too, each reading with the mean of its channel's difference before the recording's
+first command taken off (a thermistor's offset is no part of the model).
 """
 
 from __future__ import annotations
@@ -27,16 +30,19 @@ import numpy as np
 
 from ..params import NeckParams
 from ..recording import Recording, read_dataset
+from ..sensors import thermistor_lag_series
 from .model import tilt_vec
 
-__all__ = ["replay_gap_deg", "replay_dataset", "report_offset_deg", "main"]
+__all__ = ["replay", "replay_gap_deg", "replay_dataset", "report_offset_deg",
+           "report_thermistor_lag_s", "main"]
 
 
-def replay_gap_deg(rec: Recording, params: NeckParams | str | Path | None,
-                   effects: Mapping[str, Mapping[str, float]] | None = None,
-                   offset_deg: Sequence[float] = (0.0, 0.0)) -> float:
-    """RMS tilt error (per component, deg) of ``NeckTrack-v0`` (``params``: a NeckParams, a
-    params JSON path, or None for the defaults) replaying ``rec``'s commanded currents."""
+def replay(rec: Recording, params: NeckParams | str | Path | None,
+           effects: Mapping[str, Mapping[str, float]] | None = None,
+           offset_deg: Sequence[float] = (0.0, 0.0), thermistor_lag_s: float = 0.0) -> dict:
+    """``NeckTrack-v0`` (``params``: a NeckParams, a params JSON path, or None for the
+    defaults) replaying ``rec``'s commanded currents: ``{"tilt_deg": RMS tilt error per
+    component, "temperature_C": RMS thermistor error or None without readings}``."""
     dt = float(np.median(np.diff(rec.t)))
     with warnings.catch_warnings():
         # v0 is the one that applies the recorded currents as they are (v1 adds the firmware)
@@ -44,20 +50,47 @@ def replay_gap_deg(rec: Recording, params: NeckParams | str | Path | None,
         env = gym.make("NeckTrack-v0", params=params, effects=dict(effects or {}), dt=dt,
                        energy_budget_J=float("inf"), cutoff_C=float("inf"))
     try:
-        env.reset(seed=0)
+        _, info0 = env.reset(seed=0)
         infos = [env.step(rec.currents_A[k].astype(np.float32))[4] for k in range(rec.n - 1)]
     finally:
         env.close()
     sim = np.stack(tilt_vec(np.array([i["theta_deg"] for i in infos]),
                             np.array([i["phi_deg"] for i in infos])), -1) + np.asarray(offset_deg)
     meas = np.stack(tilt_vec(rec.theta_deg[1:], rec.phi_deg[1:]), -1)
-    return float(np.sqrt(np.mean((sim - meas) ** 2)))
+    out = {"tilt_deg": float(np.sqrt(np.mean((sim - meas) ** 2))), "temperature_C": None}
+    T = rec.temperatures_C
+    if T is not None and np.isfinite(T).any():
+        true = np.vstack([np.asarray(info0["temperatures_C"], float)[None],
+                          np.array([i["temperatures_C"] for i in infos], float)])
+        read = np.empty_like(true)
+        thermistor_lag_series(true, rec.t, float(thermistor_lag_s), read)
+        err = T - read
+        on = rec.currents_A.any(axis=1)
+        before = np.arange(rec.n) < (np.argmax(on) if on.any() else rec.n)
+        for j in range(3):
+            ok = np.isfinite(err[:, j])
+            if (ok & before).any():
+                err[:, j] -= err[ok & before, j].mean()
+        out["temperature_C"] = float(np.sqrt(np.nanmean(err ** 2)))
+    return out
+
+
+def replay_gap_deg(rec: Recording, params: NeckParams | str | Path | None,
+                   effects: Mapping[str, Mapping[str, float]] | None = None,
+                   offset_deg: Sequence[float] = (0.0, 0.0)) -> float:
+    """RMS tilt error (per component, deg) of ``replay``."""
+    return replay(rec, params, effects, offset_deg)["tilt_deg"]
 
 
 def report_offset_deg(report: Mapping) -> np.ndarray:
     """The IMU zero offset (x, y, deg) a diagnosis report fitted."""
     cal = report["calibration"]["params"]
     return np.array([cal["offset_x_deg"]["value"], cal["offset_y_deg"]["value"]])
+
+
+def report_thermistor_lag_s(report: Mapping) -> float:
+    """The thermistors' lag a diagnosis report fitted (0 s where it fitted none)."""
+    return float(report["calibration"]["params"].get("thermistor_lag_s", {}).get("value", 0.0))
 
 
 def _sensor_free(effects: Mapping) -> dict:
@@ -77,11 +110,15 @@ def replay_dataset(dataset: str | Path, report: Mapping | str | Path,
     params = Path(outputs["params"])
     effects = json.loads(Path(outputs["effects"]).read_text()) if "effects" in outputs else {}
     recs = read_dataset(dataset).recordings[:recordings]
-    off = report_offset_deg(report)
+    off, lag = report_offset_deg(report), report_thermistor_lag_s(report)
+    ex = [replay(r, params, _sensor_free(effects), off, lag) for r in recs]
+    de = [replay(r, None, None, (0.0, 0.0), lag) for r in recs]
+    temps = lambda rs: np.array([np.nan if x["temperature_C"] is None else x["temperature_C"]
+                                 for x in rs])
     return {"names": [r.name for r in recs],
-            "exported_deg": np.array([replay_gap_deg(r, params, _sensor_free(effects), off)
-                                      for r in recs]),
-            "defaults_deg": np.array([replay_gap_deg(r, None) for r in recs])}
+            "exported_deg": np.array([x["tilt_deg"] for x in ex]),
+            "defaults_deg": np.array([x["tilt_deg"] for x in de]),
+            "exported_C": temps(ex), "defaults_C": temps(de)}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -95,10 +132,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError, KeyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    print(f"{'recording':16s} {'exported (deg)':>15s} {'defaults (deg)':>15s}")
-    for n, x, d in zip(out["names"], out["exported_deg"], out["defaults_deg"]):
-        print(f"{n:16s} {x:15.3f} {d:15.3f}")
-    print(f"{'median':16s} {np.median(out['exported_deg']):15.3f} {np.median(out['defaults_deg']):15.3f}")
+    print(f"{'recording':16s} {'exported (deg)':>15s} {'defaults (deg)':>15s} "
+          f"{'exported (C)':>13s} {'defaults (C)':>13s}")
+    rows = zip(out["names"], out["exported_deg"], out["defaults_deg"], out["exported_C"],
+               out["defaults_C"])
+    for n, x, d, xc, dc in rows:
+        print(f"{n:16s} {x:15.3f} {d:15.3f} {xc:13.2f} {dc:13.2f}")
+    med = lambda k: np.nanmedian(out[k]) if np.isfinite(out[k]).any() else np.nan
+    print(f"{'median':16s} {med('exported_deg'):15.3f} {med('defaults_deg'):15.3f} "
+          f"{med('exported_C'):13.2f} {med('defaults_C'):13.2f}")
     return 0
 
 

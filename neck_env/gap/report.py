@@ -346,18 +346,25 @@ def _export_entry(dg: "D.Diagnosis") -> dict:
     top of the verdict (``diagnose._export``), or ``structure`` None when none was significant."""
     x = dg.export
     if x is None:
-        return {"structure": None, "exported": False,
+        return {"structure": None, "terminals": None, "exported": False,
                 "note": "no generic structural discrepancy improved the held-out recordings "
-                        "significantly: the files carry the baseline and the verdict's effects"}
+                        "significantly and the held-out temperatures did not need the terminals' "
+                        "heat path: the files carry the baseline and the verdict's effects"}
+    what = " and ".join(w for w, on in (
+        ("the terminals' heat path the held-out temperatures needed", x["terminals"] is not None),
+        ("a structure no catalogued effect names", x["structure"] is not None)) if on)
     return {**{k: (_r(v, 6) if isinstance(v, float) else v) for k, v in x.items()
-               if k != "params"},
+               if k not in ("params", "terminals")},
             "params": {k: _r(v, 6) for k, v in x["params"].items()},
-            "note": ("a structure no catalogued effect names, fitted with the verdict on every "
-                     "recording, so that NeckTrack-v0 built from the files moves as this rig "
-                     "does; it is not an effect and not in the verdict"
+            "terminals": (None if x["terminals"] is None
+                          else {k: _r(v, 6) for k, v in x["terminals"].items()}),
+            "note": (f"{what}, fitted with the verdict on every recording, so that NeckTrack-v0 "
+                     f"built from the files moves and cools as this rig does; not an effect and "
+                     f"not in the verdict"
                      if x["exported"] else
-                     "significant held out, but refitted with the verdict on every recording it "
-                     "fits them no better: the files carry the baseline and the verdict's effects")}
+                     "a structure significant held out, but refitted with the verdict on every "
+                     "recording it fits them no better: the files carry the baseline and the "
+                     "verdict's effects")}
 
 
 def text_report(rep: dict) -> str:
@@ -518,6 +525,10 @@ def text_report(rep: dict) -> str:
                  f"{x['heldout_gap_structure_deg']:.3f} deg on the nominal refit; with the "
                  f"verdict on every recording {x['gap_all_recordings_without_deg']:.3f} -> "
                  f"{x['gap_all_recordings_with_deg']:.3f} deg")
+    if x["terminals"] is not None:
+        L.append(f"  the terminals' heat path (share {x['terminals']['terminal_share']:.2f}, "
+                 f"{x['terminals']['terminal_tau_s']:.0f} s) is in the exported model: the "
+                 f"held-out temperatures needed it")
     pr = rep["localization_remaining_pattern"]
     if rep["unexplained"]:
         L.append("UNEXPLAINED: a large residual remains that no catalogued effect explains:")
