@@ -58,13 +58,17 @@ def _check_contract(rep: dict) -> None:
         assert loc["phase"] in ("heating", "cooling", "rest")
     # the export carries a structure only where one was significant held out: the best one
     x = rep["export"]
-    if x["structure"] is not None:
+    if x["evidence"] == "tilt":  # the best one held out
         best = min(rep["structure"], key=lambda c: c["heldout_gap_after"])
         assert x["structure"] == best["name"] and set(x["params"]) == set(best["params"]), x
         assert x["heldout_gap_structure_deg"] == pytest.approx(best["heldout_gap_after"], abs=1e-4), (x, best)
-        assert x["exported"] == (x["gap_all_recordings_with_deg"] < x["gap_all_recordings_without_deg"])
+        assert x["exported"] == (x["terminals"] is not None or
+                                 x["gap_all_recordings_with_deg"] < x["gap_all_recordings_without_deg"])
+    elif x["evidence"] == "temperatures":  # shown where a tilt F test could not
+        assert rep["temperatures_used"] and x["exported"], x
+        assert x["heldout_T_rms_structure_C"] <= 0.8 * x["heldout_T_rms_nominal_C"], x
     else:  # only the terminals' path the held-out temperatures selected is carried then
-        assert x["exported"] == (x["terminals"] is not None)
+        assert x["structure"] is None and x["exported"] == (x["terminals"] is not None), x
     assert (x["terminals"] is not None) == bool((rep["calibration"].get("terminals") or {}).get("selected"))
     assert [a["effect"] for a in rep["absorption"]] == list(fx.CATALOGUE)
     for a in rep["absorption"]:

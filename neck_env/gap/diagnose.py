@@ -1493,7 +1493,7 @@ class Diagnosis:
     by_repeats: dict = field(default_factory=dict)  # effect -> "named" by them
     still_air: dict | None = None  # ``still_air_caveat``: a named convection still air matches
     exported: Candidate | None = None  # what REPORT_params/effects.json carry (``_export``)
-    export: dict | None = None  # the report's ``export``: the structure it carries, and why
+    export: dict | None = None  # the report's ``export``: the structure and path it carries
 
 
 def calibration_summary(fitter: Fitter, cand: Candidate) -> dict:
@@ -2311,7 +2311,8 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
     final_nominal = Candidate("nominal", (), list(model.nominal), u=nominal.u.copy())
     final = (effect_candidate(model, verdict, {}, verdict_c.setting()) if verdict
              else Candidate("nominal", (), list(model.nominal), u=nominal.u.copy()))
-    carried = _export_candidate(run, att, terms, verdict, verdict_c)
+    shown_by = _structure_shown(run, att, nominal)
+    carried = _export_candidate(run, att, terms, shown_by, verdict, verdict_c)
     # fitted in the lockstep run of the model it belongs to (the terminals' has its own)
     on_terminals = terms is not None and terms.selected
     all_fitter.run([final_nominal, *([final] if verdict else []),
@@ -2329,7 +2330,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
     if terms is not None:
         calibration["terminals"] = _terminals_summary(
             terms, calibration, run, also=[carried] if on_terminals else [])
-    exported, export = _export(data, att, terms, final, carried)
+    exported, export = _export(data, att, terms, shown_by, final, carried)
     run.lap("final_fit_s")
     # localization of the plain nominal refit: a drift nuisance must not hide where the gap is
     res_nom = full_residuals(data, base.full_plain)
@@ -2417,55 +2418,85 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                      still_air=caveat, exported=exported, export=export)
 
 
+def _structure_shown(run: _Run, att: "_Attribution",
+                     nominal: Candidate) -> tuple[Candidate, str, Warming | None] | None:
+    """The generic structural discrepancy the held-out data showed the rig has, the evidence
+    ("tilt" or "temperatures") and its held-out thermistor comparison: the best one where it
+    was a significant improvement on the nominal refit held out (``_Attribution.rival``); else,
+    with thermistors, the one that fits the held-out temperatures best among those that fit
+    them better by ``temperatures_fit`` with the held-out tilt not significantly worse -- the
+    terminals' rule (``_check_terminals``): a thermal structure (still air, latent heat) shows
+    in the springs' temperatures before the tilt. None when neither."""
+    data = run.data
+    temps = {}
+    if data.has_T:
+        sel = data.T_read & run.hold_mask[:, None]
+        temps = {c.name: thermistor_compare(data, nominal.pred, c.pred, sel) for c in att.nulls}
+    if att.rival:
+        return att.best_null, "tilt", temps.get(att.best_null.name)
+    shown = [c for c in att.nulls if temperatures_fit(temps.get(c.name))
+             and tilt_not_worse(att.null_cmp[c.name])]
+    if not shown:
+        return None
+    best = min(shown, key=lambda c: temps[c.name].rms_after_C)
+    return best, "temperatures", temps[best.name]
+
+
 def _export_candidate(run: _Run, att: "_Attribution", terms: "_Terminals | None",
+                      shown_by: tuple[Candidate, str, Warming | None] | None,
                       verdict: Sequence[str], verdict_c: Candidate) -> Candidate | None:
     """The model the corrected-model files should carry beyond the verdict, unfitted: the
-    verdict with the best generic structural discrepancy on top where that discrepancy was a
-    significant improvement on the nominal refit held out (``_Attribution.rival``), on the
-    baseline with the terminals' heat path where the held-out temperatures needed it
-    (``_Terminals.selected``). Started from the verdict's fit, the discrepancy's and the path's
-    own values. None when neither holds."""
-    rival = att.rival
+    verdict with the structural discrepancy the held-out data showed (``_structure_shown``) on
+    top, on the baseline with the terminals' heat path where the held-out temperatures needed
+    it (``_Terminals.selected``). Started from the verdict's fit, the discrepancy's and the
+    path's own values. None when neither holds."""
     path = terms is not None and terms.selected
-    if not (rival or path):
+    if shown_by is None and not path:
         return None
     model = terms.model if path else run.model
     vals = {**verdict_c.setting()}
     if path:
         vals.update({k: v for k, v in terms.cand.values.items() if k.startswith("terminal_")})
-    if not rival:
+    if shown_by is None:
         return effect_candidate(model, verdict, vals)
-    name = att.best_null.name
-    vals.update({s.key: att.best_null.values[s.key] for s in ALL_STRUCTURE[name]})
-    return structure_candidate(model, name, vals, effects=verdict)
+    null = shown_by[0]
+    vals.update({s.key: null.values[s.key] for s in ALL_STRUCTURE[null.name]})
+    return structure_candidate(model, null.name, vals, effects=verdict)
 
 
-def _export(data: Prepared, att: "_Attribution", terms: "_Terminals | None", final: Candidate,
+def _export(data: Prepared, att: "_Attribution", terms: "_Terminals | None",
+            shown_by: tuple[Candidate, str, Warming | None] | None, final: Candidate,
             carried: Candidate | None) -> tuple[Candidate, dict | None]:
     """11. What the corrected-model files carry (``_export_candidate``, fitted on every
     recording). A rig's structure or its terminals are no effect to name, but NeckTrack-v0
     built from the files should move and cool as the rig does. The path is carried as the
-    held-out temperatures selected it; a structural discrepancy only when, refitted with the
-    verdict on every recording, it also fits their tilt better."""
+    held-out temperatures selected it (with a discrepancy, both as fitted together); a
+    discrepancy alone shown by the tilt only when, refitted with the verdict on every
+    recording, it also fits their tilt better, one shown by the temperatures as they showed it."""
     if carried is None:
         return final, None
     every = np.ones(data.meas_theta.shape, bool)
     on_all = compare(data, final.pred, carried.pred, every)
     path = terms is not None and terms.selected
-    info = {"structure": None, "params": {},
+    info = {"structure": None, "params": {}, "evidence": None,
             "heldout_gap_nominal_deg": None, "heldout_gap_structure_deg": None,
+            "heldout_T_rms_nominal_C": None, "heldout_T_rms_structure_C": None,
             "terminals": ({k: carried.values[k] for k in ("terminal_share", "terminal_tau_s")}
                           if path else None),
             "gap_all_recordings_without_deg": on_all.gap_before_deg,
             "gap_all_recordings_with_deg": on_all.gap_after_deg,
             "exported": bool(path or on_all.gap_after_deg < on_all.gap_before_deg)}
-    if att.rival:
-        name = att.best_null.name
-        held = att.null_cmp[name]
-        info.update(structure=name.split(":", 1)[1],
-                    params={s.key: carried.values[s.key] for s in ALL_STRUCTURE[name]},
+    if shown_by is not None:
+        null, evidence, temps = shown_by
+        held = att.null_cmp[null.name]
+        info.update(structure=null.name.split(":", 1)[1], evidence=evidence,
+                    params={s.key: carried.values[s.key] for s in ALL_STRUCTURE[null.name]},
                     heldout_gap_nominal_deg=held.gap_before_deg,
-                    heldout_gap_structure_deg=held.gap_after_deg)
+                    heldout_gap_structure_deg=held.gap_after_deg,
+                    heldout_T_rms_nominal_C=temps.rms_before_C if temps else None,
+                    heldout_T_rms_structure_C=temps.rms_after_C if temps else None)
+        if evidence == "temperatures":
+            info["exported"] = True
     return (carried if info["exported"] else final), info
 
 

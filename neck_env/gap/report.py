@@ -342,14 +342,17 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
 
 
 def _export_entry(dg: "D.Diagnosis") -> dict:
-    """The report's ``export``: the structural discrepancy the corrected-model files carry on
-    top of the verdict (``diagnose._export``), or ``structure`` None when none was significant."""
+    """The report's ``export``: the structural discrepancy and the terminals' heat path the
+    corrected-model files carry on top of the verdict (``diagnose._export``); each None when
+    the held-out data did not show it."""
     x = dg.export
     if x is None:
-        return {"structure": None, "terminals": None, "exported": False,
-                "note": "no generic structural discrepancy improved the held-out recordings "
-                        "significantly and the held-out temperatures did not need the terminals' "
-                        "heat path: the files carry the baseline and the verdict's effects"}
+        return {"structure": None, "params": {}, "evidence": None, "terminals": None,
+                "exported": False,
+                "note": "no generic structural discrepancy improved the held-out tilt or "
+                        "temperatures significantly and the held-out temperatures did not need "
+                        "the terminals' heat path: the files carry the baseline and the "
+                        "verdict's effects"}
     what = " and ".join(w for w, on in (
         ("the terminals' heat path the held-out temperatures needed", x["terminals"] is not None),
         ("a structure no catalogued effect names", x["structure"] is not None)) if on)
@@ -519,11 +522,16 @@ def text_report(rep: dict) -> str:
     x = rep["export"]
     if x["structure"] is not None:
         ps = ", ".join(f"{k} = {v:.3g}" for k, v in x["params"].items())
+        shown = (f"the held-out temperatures {x['heldout_T_rms_nominal_C']:.2f} -> "
+                 f"{x['heldout_T_rms_structure_C']:.2f} C on the nominal refit (the tilt "
+                 f"{x['heldout_gap_nominal_deg']:.3f} -> {x['heldout_gap_structure_deg']:.3f} deg)"
+                 if x["evidence"] == "temperatures" else
+                 f"held out {x['heldout_gap_nominal_deg']:.3f} -> "
+                 f"{x['heldout_gap_structure_deg']:.3f} deg on the nominal refit")
         L.append(f"  the rig's structure, {x['structure']} ({ps}), "
                  + ("is in the exported model" if x["exported"] else "is not exported")
-                 + f": held out {x['heldout_gap_nominal_deg']:.3f} -> "
-                 f"{x['heldout_gap_structure_deg']:.3f} deg on the nominal refit; with the "
-                 f"verdict on every recording {x['gap_all_recordings_without_deg']:.3f} -> "
+                 + f": {shown}; with the verdict on every recording "
+                 f"{x['gap_all_recordings_without_deg']:.3f} -> "
                  f"{x['gap_all_recordings_with_deg']:.3f} deg")
     if x["terminals"] is not None:
         L.append(f"  the terminals' heat path (share {x['terminals']['terminal_share']:.2f}, "
