@@ -40,7 +40,8 @@ from scipy.stats import wilcoxon
 
 from neck_env.gap import diagnose as D
 from neck_env.gap import report as R
-from neck_env.gap.replay import replay, report_offset_deg, report_thermistor_lag_s
+from neck_env.gap.independent import CONVECTION_LAWS
+from neck_env.gap.replay import plant_effects, replay, report_offset_deg, report_thermistor_lag_s
 from neck_env.recording import read_dataset
 
 # rigs written apart from the model, whose IMU zero offset (the mount) is the rig's: the same
@@ -69,8 +70,7 @@ def run_seed(a: argparse.Namespace, seed: int, root: Path) -> dict:
         dg = D.diagnose(read_dataset(seen), still_air=a.still_air)
         rep = R.write_outputs(dg, root / f"report_{seed}.json", seen, make_plots=False)
     seconds = time.perf_counter() - t0
-    effects = json.loads(Path(rep["outputs"]["effects"]).read_text())
-    effects.pop("imu_misalignment", None)  # the replay compares the true tilt (replay.py)
+    effects = plant_effects(json.loads(Path(rep["outputs"]["effects"]).read_text()))
     verdict_only = dg.model.params_of(dg.final.values)
     off, lag = report_offset_deg(rep), report_thermistor_lag_s(rep)
     recs = read_dataset(unseen).recordings
@@ -133,13 +133,16 @@ def main(argv=None) -> int:
     ap.add_argument("--first-seed", type=int, default=12300)
     ap.add_argument("--datasets", type=int, default=8)
     ap.add_argument("--effects", default="", help="comma-separated effects every rig holds (default none)")
-    ap.add_argument("--convection", default="constant", help="independent rig: constant, natural, thin_wire")
+    ap.add_argument("--convection", default="constant", choices=tuple(CONVECTION_LAWS),
+                    help="the independent rig's springs: a constant h, or still air's laws")
     ap.add_argument("--still-air", action="store_true", help="diagnose with neck-gap --still-air")
     ap.add_argument("--out", type=Path, default=Path("runs/gap_export"))
     ap.add_argument("--resume", action="store_true", help="keep the seeds already done in --out")
     ap.add_argument("--summarize", action="store_true", help="print the results in --out only")
     a = ap.parse_args(argv)
     a.effects = [e for e in a.effects.split(",") if e]
+    if a.convection != "constant" and a.generator != "independent":
+        ap.error("--convection is the independent rig's (the third rig's springs have their own law)")
     a.out.mkdir(parents=True, exist_ok=True)
     if a.summarize:
         results = [json.loads(p.read_text()) for p in sorted(a.out.glob("result_*.json"))]

@@ -33,7 +33,7 @@ from ..recording import Recording, read_dataset
 from ..sensors import thermistor_lag_series
 from .model import tilt_vec
 
-__all__ = ["replay", "replay_gap_deg", "replay_dataset", "report_offset_deg",
+__all__ = ["replay", "replay_gap_deg", "replay_dataset", "plant_effects", "report_offset_deg",
            "report_thermistor_lag_s", "main"]
 
 
@@ -93,7 +93,9 @@ def report_thermistor_lag_s(report: Mapping) -> float:
     return float(report["calibration"]["params"].get("thermistor_lag_s", {}).get("value", 0.0))
 
 
-def _sensor_free(effects: Mapping) -> dict:
+def plant_effects(effects: Mapping) -> dict:
+    """The exported effects a replay applies: all but ``imu_misalignment``, which changes what
+    the env's IMU reads, not the true tilt the replay compares."""
     return {k: v for k, v in effects.items() if k != "imu_misalignment"}
 
 
@@ -111,7 +113,7 @@ def replay_dataset(dataset: str | Path, report: Mapping | str | Path,
     effects = json.loads(Path(outputs["effects"]).read_text()) if "effects" in outputs else {}
     recs = read_dataset(dataset).recordings[:recordings]
     off, lag = report_offset_deg(report), report_thermistor_lag_s(report)
-    ex = [replay(r, params, _sensor_free(effects), off, lag) for r in recs]
+    ex = [replay(r, params, plant_effects(effects), off, lag) for r in recs]
     de = [replay(r, None, None, (0.0, 0.0), lag) for r in recs]
     temps = lambda rs: np.array([np.nan if x["temperature_C"] is None else x["temperature_C"]
                                  for x in rs])
