@@ -56,7 +56,8 @@ def _check_contract(rep: dict) -> None:
     for loc in rep["localization"]:
         assert loc["signal"] in ("theta", "phi", "temperature")
         assert loc["phase"] in ("heating", "cooling", "rest")
-    # the export carries a structure only where one was significant held out: the best one
+    # the export carries a structure the held-out data showed (the best on the tilt, or one the
+    # temperatures show) and the terminals' path their check selected
     x = rep["export"]
     if x["evidence"] == "tilt":  # the best one held out
         best = min(rep["structure"], key=lambda c: c["heldout_gap_after"])
