@@ -313,6 +313,10 @@ def test_replay_refuses_a_report_without_an_export_and_a_missing_dataset(tmp_pat
     assert replay_main([str(ds), str(rep)]) == 2
     assert "outputs.params" in capsys.readouterr().err
     rep.write_text(json.dumps({"verdict": [], "outputs": {"params": str(tmp_path / "p.json")}}))
+    assert replay_main([str(ds), str(rep)]) == 2
+    assert "no calibration" in capsys.readouterr().err
+    rep.write_text(json.dumps({"verdict": [], "outputs": {"params": str(tmp_path / "p.json")},
+                               "calibration": {"params": {}}}))
     assert replay_main([str(tmp_path / "nowhere"), str(rep)]) == 2
     assert "nowhere" in capsys.readouterr().err
 

@@ -99,18 +99,34 @@ def plant_effects(effects: Mapping) -> dict:
     return {k: v for k, v in effects.items() if k != "imu_misalignment"}
 
 
+def _beside(path: str, report_dir: Path | None) -> Path:
+    """A file the report names: as written (relative to where neck-gap ran), else beside the
+    report (the folder moved, or replayed from elsewhere)."""
+    p = Path(path)
+    if not p.exists() and report_dir is not None and (report_dir / p.name).exists():
+        return report_dir / p.name
+    return p
+
+
 def replay_dataset(dataset: str | Path, report: Mapping | str | Path,
                    recordings: int | None = None) -> dict[str, np.ndarray]:
     """Per-recording replay errors of the report's exported model and of the defaults:
-    ``{"names", "exported_deg", "defaults_deg"}`` (the first ``recordings`` only if given)."""
+    ``{"names", "exported_deg", "defaults_deg", "exported_C", "defaults_C"}`` (temperatures
+    NaN where a recording has no thermistor readings; the first ``recordings`` only if given)."""
+    report_dir = None
     if not isinstance(report, Mapping):
+        report_dir = Path(report).parent
         report = json.loads(Path(report).read_text())
     outputs = report.get("outputs") or {}
     if "params" not in outputs:
         raise ValueError("the report names no exported model (outputs.params): write it with "
                          "neck-gap DATASET --json REPORT.json")
-    params = Path(outputs["params"])
-    effects = json.loads(Path(outputs["effects"]).read_text()) if "effects" in outputs else {}
+    if "calibration" not in report:
+        raise ValueError("the report has no calibration (the IMU zero offset the replay adds): "
+                         "is it a neck-gap report?")
+    params = _beside(outputs["params"], report_dir)
+    effects = (json.loads(_beside(outputs["effects"], report_dir).read_text())
+               if "effects" in outputs else {})
     recs = read_dataset(dataset).recordings[:recordings]
     off, lag = report_offset_deg(report), report_thermistor_lag_s(report)
     ex = [replay(r, params, plant_effects(effects), off, lag) for r in recs]
