@@ -759,18 +759,29 @@ def heats(c: Comparison) -> bool:
                                                   or temperatures_fit(c.temperatures_vs_structure))
 
 
+def null_temperatures(data: Prepared, reference: Prediction, nulls: Sequence[Candidate],
+                      mask: np.ndarray) -> dict[str, Warming | None]:
+    """Each structural discrepancy's ``thermistor_compare`` on the masked readings against
+    ``reference``. Empty without thermistors."""
+    if data.meas_T is None:
+        return {}
+    sel = data.T_read & mask[:, None]
+    return {c.name: thermistor_compare(data, reference, c.pred, sel) for c in nulls}
+
+
 def temperature_evidence(data: Prepared, reference: Prediction, cands: Sequence[Candidate],
-                         nulls: Sequence[Candidate], mask: np.ndarray
-                         ) -> dict[str, tuple[Warming | None, Warming | None]]:
+                         nulls: Sequence[Candidate], null_heat: dict[str, Warming | None],
+                         mask: np.ndarray) -> dict[str, tuple[Warming | None, Warming | None]]:
     """Per candidate, its ``thermistor_compare`` on the masked readings against ``reference``,
-    and against the best of ``nulls`` on the temperatures when that one passes
-    ``temperatures_fit`` against ``reference`` (else None). Empty without thermistors."""
+    and against the best of ``nulls`` on the temperatures (``null_heat``: theirs, from
+    ``null_temperatures``) when that one passes ``temperatures_fit`` against ``reference`` (else
+    None). Empty without thermistors."""
     if data.meas_T is None or not cands:
         return {}
     sel = data.T_read & mask[:, None]
-    heat = {c.name: thermistor_compare(data, reference, c.pred, sel) for c in [*cands, *nulls]}
-    rivals = sorted((c for c in nulls if temperatures_fit(heat[c.name])),
-                    key=lambda c: heat[c.name].rms_after_C)
+    heat = {c.name: thermistor_compare(data, reference, c.pred, sel) for c in cands}
+    rivals = sorted((c for c in nulls if temperatures_fit(null_heat[c.name])),
+                    key=lambda c: null_heat[c.name].rms_after_C)
     return {c.name: (heat[c.name], thermistor_compare(data, rivals[0].pred, c.pred, sel)
                      if rivals else None) for c in cands}
 
@@ -1782,6 +1793,8 @@ class _Attribution:
     rival: bool  # the best null is itself a significant improvement on the nominal refit
     offs: dict[str, Prediction]  # each single's own fit with its effect switched off
     still_air_check: Candidate | None = None  # still air fitted where it is no rival
+    # the nulls' held-out thermistor comparisons with the nominal refit (``null_temperatures``)
+    null_temperatures: dict[str, Warming | None] = field(default_factory=dict)
 
 
 @dataclass
@@ -1972,9 +1985,10 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
                         structure_significant=rival)
         single_cmp[c.name] = replace(single_cmp[c.name], built_up=replace(
             b, judged_recordings=tuple(int(r) for r in np.unique(data.fit_rec[m]))))
+    null_heat = null_temperatures(data, nominal.pred, nulls, hold_mask)
     heat = temperature_evidence(data, nominal.pred,
                                 [c for c in singles if fx.EFFECTS[c.effects[0]].thermal],
-                                nulls, hold_mask)
+                                nulls, null_heat, hold_mask)
     for name, (w, w_vs) in heat.items():
         single_cmp[name] = replace(single_cmp[name], temperatures=w, temperatures_vs_structure=w_vs)
     if best_null is not None:
@@ -2007,6 +2021,7 @@ def _attribute(run: _Run, nominal: Candidate) -> _Attribution:
                 f"{w.rms_after_C:.2f} C ({100 * w.reduction:+.0f} %, F = {w.F:.1f} > "
                 f"{w.F_crit:.2f}?){'  * warms' if warms(s) else ''}")
     return _Attribution(singles=singles, single_cmp=single_cmp, nulls=nulls, null_cmp=null_cmp,
+                        null_temperatures=null_heat,
                         best_null=best_null, rival=rival, offs=offs,
                         still_air_check=check[0] if check else None)
 
@@ -2311,12 +2326,12 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
     final_nominal = Candidate("nominal", (), list(model.nominal), u=nominal.u.copy())
     final = (effect_candidate(model, verdict, {}, verdict_c.setting()) if verdict
              else Candidate("nominal", (), list(model.nominal), u=nominal.u.copy()))
-    shown_by = _structure_shown(run, att, nominal)
-    carried = _export_candidate(run, att, terms, shown_by, verdict, verdict_c)
+    shown_by = _structure_shown(att)
+    path = terms if terms is not None and terms.selected else None  # the terminals' path shown
+    carried = _export_candidate(run, path, shown_by, verdict, verdict_c)
     # fitted in the lockstep run of the model it belongs to (the terminals' has its own)
-    on_terminals = terms is not None and terms.selected
     all_fitter.run([final_nominal, *([final] if verdict else []),
-                    *([carried] if carried is not None and not on_terminals else [])],
+                    *([carried] if carried is not None and path is None else [])],
                    max_iter=run.max_iter)
     if not verdict:
         final = final_nominal
@@ -2329,8 +2344,8 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
         calibration["corrected"] = calibration_summary(all_fitter, final)
     if terms is not None:
         calibration["terminals"] = _terminals_summary(
-            terms, calibration, run, also=[carried] if on_terminals else [])
-    exported, export = _export(data, att, terms, shown_by, final, carried)
+            terms, calibration, run, also=[carried] if path is not None else [])
+    exported, export = _export(data, att, path, shown_by, final, carried)
     run.lap("final_fit_s")
     # localization of the plain nominal refit: a drift nuisance must not hide where the gap is
     res_nom = full_residuals(data, base.full_plain)
@@ -2418,8 +2433,7 @@ def _conclude(run: _Run, base: _Baseline, att: _Attribution, dec: _Decision,
                      still_air=caveat, exported=exported, export=export)
 
 
-def _structure_shown(run: _Run, att: "_Attribution",
-                     nominal: Candidate) -> tuple[Candidate, str, Warming | None] | None:
+def _structure_shown(att: "_Attribution") -> tuple[Candidate, str, Warming | None] | None:
     """The generic structural discrepancy the held-out data showed the rig has, the evidence
     ("tilt" or "temperatures") and its held-out thermistor comparison: the best one where it
     was a significant improvement on the nominal refit held out (``_Attribution.rival``); else,
@@ -2427,11 +2441,7 @@ def _structure_shown(run: _Run, att: "_Attribution",
     them better by ``temperatures_fit`` with the held-out tilt not significantly worse -- the
     terminals' rule (``_check_terminals``): a thermal structure (still air, latent heat) shows
     in the springs' temperatures before the tilt. None when neither."""
-    data = run.data
-    temps = {}
-    if data.has_T:
-        sel = data.T_read & run.hold_mask[:, None]
-        temps = {c.name: thermistor_compare(data, nominal.pred, c.pred, sel) for c in att.nulls}
+    temps = att.null_temperatures
     if att.rival:
         return att.best_null, "tilt", temps.get(att.best_null.name)
     shown = [c for c in att.nulls if temperatures_fit(temps.get(c.name))
@@ -2442,7 +2452,7 @@ def _structure_shown(run: _Run, att: "_Attribution",
     return best, "temperatures", temps[best.name]
 
 
-def _export_candidate(run: _Run, att: "_Attribution", terms: "_Terminals | None",
+def _export_candidate(run: _Run, path: "_Terminals | None",
                       shown_by: tuple[Candidate, str, Warming | None] | None,
                       verdict: Sequence[str], verdict_c: Candidate) -> Candidate | None:
     """The model the corrected-model files should carry beyond the verdict, unfitted: the
@@ -2450,13 +2460,12 @@ def _export_candidate(run: _Run, att: "_Attribution", terms: "_Terminals | None"
     top, on the baseline with the terminals' heat path where the held-out temperatures needed
     it (``_Terminals.selected``). Started from the verdict's fit, the discrepancy's and the
     path's own values. None when neither holds."""
-    path = terms is not None and terms.selected
-    if shown_by is None and not path:
+    if shown_by is None and path is None:
         return None
-    model = terms.model if path else run.model
+    model = run.model if path is None else path.model
     vals = {**verdict_c.setting()}
-    if path:
-        vals.update({k: v for k, v in terms.cand.values.items() if k.startswith("terminal_")})
+    if path is not None:
+        vals.update({k: v for k, v in path.cand.values.items() if k.startswith("terminal_")})
     if shown_by is None:
         return effect_candidate(model, verdict, vals)
     null = shown_by[0]
@@ -2464,7 +2473,7 @@ def _export_candidate(run: _Run, att: "_Attribution", terms: "_Terminals | None"
     return structure_candidate(model, null.name, vals, effects=verdict)
 
 
-def _export(data: Prepared, att: "_Attribution", terms: "_Terminals | None",
+def _export(data: Prepared, att: "_Attribution", path: "_Terminals | None",
             shown_by: tuple[Candidate, str, Warming | None] | None, final: Candidate,
             carried: Candidate | None) -> tuple[Candidate, dict | None]:
     """11. What the corrected-model files carry (``_export_candidate``, fitted on every
@@ -2477,15 +2486,14 @@ def _export(data: Prepared, att: "_Attribution", terms: "_Terminals | None",
         return final, None
     every = np.ones(data.meas_theta.shape, bool)
     on_all = compare(data, final.pred, carried.pred, every)
-    path = terms is not None and terms.selected
     info = {"structure": None, "params": {}, "evidence": None,
             "heldout_gap_nominal_deg": None, "heldout_gap_structure_deg": None,
             "heldout_T_rms_nominal_C": None, "heldout_T_rms_structure_C": None,
             "terminals": ({k: carried.values[k] for k in ("terminal_share", "terminal_tau_s")}
-                          if path else None),
+                          if path is not None else None),
             "gap_all_recordings_without_deg": on_all.gap_before_deg,
             "gap_all_recordings_with_deg": on_all.gap_after_deg,
-            "exported": bool(path or on_all.gap_after_deg < on_all.gap_before_deg)}
+            "exported": bool(path is not None or on_all.gap_after_deg < on_all.gap_before_deg)}
     if shown_by is not None:
         null, evidence, temps = shown_by
         held = att.null_cmp[null.name]
