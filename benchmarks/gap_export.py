@@ -41,7 +41,7 @@ from scipy.stats import wilcoxon
 from neck_env.gap import diagnose as D
 from neck_env.gap import report as R
 from neck_env.gap.independent import CONVECTION_LAWS
-from neck_env.gap.replay import plant_effects, replay, report_offset_deg, report_thermistor_lag_s
+from neck_env.gap.replay import replay, report_offset_deg, report_thermistor_lag_s
 from neck_env.recording import read_dataset
 
 # rigs written apart from the model, whose IMU zero offset (the mount) is the rig's: the same
@@ -70,7 +70,7 @@ def run_seed(a: argparse.Namespace, seed: int, root: Path) -> dict:
         dg = D.diagnose(read_dataset(seen), still_air=a.still_air)
         rep = R.write_outputs(dg, root / f"report_{seed}.json", seen, make_plots=False)
     seconds = time.perf_counter() - t0
-    effects = plant_effects(json.loads(Path(rep["outputs"]["effects"]).read_text()))
+    effects = json.loads(Path(rep["outputs"]["effects"]).read_text())
     verdict_only = dg.model.params_of(dg.final.values)
     off, lag = report_offset_deg(rep), report_thermistor_lag_s(rep)
     recs = read_dataset(unseen).recordings

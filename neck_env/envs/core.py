@@ -339,6 +339,11 @@ class NeckTrackCore:
         return self.x[:, L.S_T:L.S_T + 3]
 
     @property
+    def pose_rad(self) -> np.ndarray:
+        """Bend b_x, b_y and twist (rad) of each env (N, 3): the pose an IMU on the head reads."""
+        return self.x[:, L.S_Q:L.S_Q + 3]
+
+    @property
     def currents_A(self) -> np.ndarray:
         return self.out[:, L.O_CURRENT:L.O_CURRENT + 3]
 

@@ -8,9 +8,9 @@ the exported model reproduces this rig (``docs/gap.md``, method item 11).
 The env is made at the recording's sample period (the default 20 Hz step moves a switching edge
 by up to 40 ms, which a short pulse feels) and without the task's energy budget and
 over-temperature cut; each row's currents hold until the next row, where the pose is compared.
-The env's true tilt (``info``) plus the report's fitted IMU zero offset is compared with the
-recorded tilt: a sensor effect in the files (``imu_misalignment``) changes what the env's IMU
-reads, not ``info``, so the replay leaves it out. Where the recordings hold thermistor columns,
+The env's head pose read as the diagnosis reads it (the sensor chain's settled accelerometer
+tilt, through the exported ``imu_misalignment``'s mount where there is one) plus the report's
+fitted IMU zero offset is compared with the recorded tilt. Where the recordings hold thermistor columns,
 the springs' temperatures (``info``, read through the report's fitted thermistor lag) are
 compared too, each reading with the mean of its channel's difference before the recording's
 first command taken off (a thermistor's offset is no part of the model).
@@ -28,12 +28,13 @@ from typing import Mapping, Sequence
 import gymnasium as gym
 import numpy as np
 
+from .. import effects as fx
 from ..params import NeckParams
 from ..recording import Recording, read_dataset
 from ..sensors import thermistor_lag_series
-from .model import tilt_vec
+from .model import imu_tilt, tilt_vec
 
-__all__ = ["replay", "replay_gap_deg", "replay_dataset", "plant_effects", "report_offset_deg",
+__all__ = ["replay", "replay_gap_deg", "replay_dataset", "report_offset_deg",
            "report_thermistor_lag_s", "main"]
 
 
@@ -49,13 +50,17 @@ def replay(rec: Recording, params: NeckParams | str | Path | None,
         warnings.filterwarnings("ignore", ".*NeckTrack-v0 is out of date")
         env = gym.make("NeckTrack-v0", params=params, effects=dict(effects or {}), dt=dt,
                        energy_budget_J=float("inf"), cutoff_C=float("inf"))
+    core = env.unwrapped.core
     try:
         _, info0 = env.reset(seed=0)
-        infos = [env.step(rec.currents_A[k].astype(np.float32))[4] for k in range(rec.n - 1)]
+        infos, poses = [], np.empty((rec.n - 1, 3))
+        for k in range(rec.n - 1):
+            infos.append(env.step(rec.currents_A[k].astype(np.float32))[4])
+            poses[k] = core.pose_rad[0]
     finally:
         env.close()
-    sim = np.stack(tilt_vec(np.array([i["theta_deg"] for i in infos]),
-                            np.array([i["phi_deg"] for i in infos])), -1) + np.asarray(offset_deg)
+    mount = fx.imu_mount(effects or {})
+    sim = np.stack(imu_tilt(poses, mount), -1) + np.asarray(offset_deg)
     meas = np.stack(tilt_vec(rec.theta_deg[1:], rec.phi_deg[1:]), -1)
     out = {"tilt_deg": float(np.sqrt(np.mean((sim - meas) ** 2))), "temperature_C": None}
     T = rec.temperatures_C
@@ -93,12 +98,6 @@ def report_thermistor_lag_s(report: Mapping) -> float:
     return float(report["calibration"]["params"].get("thermistor_lag_s", {}).get("value", 0.0))
 
 
-def plant_effects(effects: Mapping) -> dict:
-    """The exported effects a replay applies: all but ``imu_misalignment``, which changes what
-    the env's IMU reads, not the true tilt the replay compares."""
-    return {k: v for k, v in effects.items() if k != "imu_misalignment"}
-
-
 def _beside(path: str, report_dir: Path | None) -> Path:
     """A file the report names: as written (relative to where neck-gap ran), else beside the
     report (the folder moved, or replayed from elsewhere)."""
@@ -129,7 +128,7 @@ def replay_dataset(dataset: str | Path, report: Mapping | str | Path,
                if "effects" in outputs else {})
     recs = read_dataset(dataset).recordings[:recordings]
     off, lag = report_offset_deg(report), report_thermistor_lag_s(report)
-    ex = [replay(r, params, plant_effects(effects), off, lag) for r in recs]
+    ex = [replay(r, params, effects, off, lag) for r in recs]
     de = [replay(r, None, None, (0.0, 0.0), lag) for r in recs]
     temps = lambda rs: np.array([np.nan if x["temperature_C"] is None else x["temperature_C"]
                                  for x in rs])
