@@ -73,9 +73,12 @@ def run_seed(a: argparse.Namespace, seed: int, root: Path) -> dict:
     effects = json.loads(Path(rep["outputs"]["effects"]).read_text())
     verdict_only = dg.model.params_of(dg.final.values)
     off, lag = report_offset_deg(rep), report_thermistor_lag_s(rep)
+    st = dg.final.setting()  # the verdict model's own sensor fit
+    off_v = (st.get("offset_x_deg", 0.0), st.get("offset_y_deg", 0.0))
+    lag_v = st.get("thermistor_lag_s", 0.0)
     recs = read_dataset(unseen).recordings
     runs = {"exported": [replay(r, rep["outputs"]["params"], effects, off, lag) for r in recs],
-            "verdict_only": [replay(r, verdict_only, effects, off, lag) for r in recs],
+            "verdict_only": [replay(r, verdict_only, effects, off_v, lag_v) for r in recs],
             "defaults": [replay(r, None, None, (0.0, 0.0), lag) for r in recs]}
     out = {"seed": seed, "truth": truth["effects"], "verdict": rep["verdict"],
            "export": rep["export"], "seconds": seconds,

@@ -71,6 +71,12 @@ def _check_contract(rep: dict) -> None:
     else:  # only the terminals' path the held-out temperatures selected is carried then
         assert x["structure"] is None and x["exported"] == (x["terminals"] is not None), x
     assert (x["terminals"] is not None) == bool((rep["calibration"].get("terminals") or {}).get("selected"))
+    # the replay's IMU offset and thermistor lag are the exported fit's, not the nominal refit's
+    assert set(x["sensors"]) == {"offset_x_deg", "offset_y_deg", "thermistor_lag_s"}
+    if not x["exported"]:  # the files hold the verdict model: so do the sensors
+        cp = rep["corrected"]["params"]
+        for k, v in x["sensors"].items():
+            assert v == pytest.approx(cp.get(k, 0.0), abs=1e-5), (k, x["sensors"], cp)
     assert [a["effect"] for a in rep["absorption"]] == list(fx.CATALOGUE)
     for a in rep["absorption"]:
         assert a["heldout_size_deg"] >= 0 and a["heldout_left_deg"] >= 0
@@ -301,6 +307,20 @@ def _replay_export_and_defaults(ds: Path, rep: dict) -> tuple[np.ndarray, np.nda
     from the report's export (with its fitted IMU zero offset) and from the defaults."""
     out = replay_dataset(ds, rep, recordings=4)
     return out["exported_deg"], out["defaults_deg"]
+
+
+def test_replay_takes_the_sensors_of_the_exported_fit_and_an_older_reports_calibration():
+    from neck_env.gap.replay import report_offset_deg, report_thermistor_lag_s
+
+    cal = {"params": {"offset_x_deg": {"value": -0.19}, "offset_y_deg": {"value": 0.21},
+                      "thermistor_lag_s": {"value": 2.0}}}
+    older = {"calibration": cal}
+    assert report_offset_deg(older).tolist() == [-0.19, 0.21]
+    assert report_thermistor_lag_s(older) == 2.0
+    rep = {"calibration": cal, "export": {"sensors": {"offset_x_deg": -0.10, "offset_y_deg": 0.24,
+                                                      "thermistor_lag_s": 0.97}}}
+    assert report_offset_deg(rep).tolist() == [-0.10, 0.24]
+    assert report_thermistor_lag_s(rep) == 0.97
 
 
 def test_replay_refuses_a_report_without_an_export_and_a_missing_dataset(tmp_path, capsys):

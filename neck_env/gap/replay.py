@@ -9,9 +9,10 @@ The env is made at the recording's sample period (the default 20 Hz step moves a
 by up to 40 ms, which a short pulse feels) and without the task's energy budget and
 over-temperature cut; each row's currents hold until the next row, where the pose is compared.
 The env's head pose read as the diagnosis reads it (the sensor chain's settled accelerometer
-tilt, through the exported ``imu_misalignment``'s mount where there is one) plus the report's
-fitted IMU zero offset is compared with the recorded tilt. Where the recordings hold thermistor columns,
-the springs' temperatures (``info``, read through the report's fitted thermistor lag) are
+tilt, through the exported ``imu_misalignment``'s mount where there is one) plus the IMU zero
+offset fitted with the exported model (the report's ``export.sensors``) is compared with the
+recorded tilt. Where the recordings hold thermistor columns,
+the springs' temperatures (``info``, read through the thermistor lag fitted with it) are
 compared too, each reading with the mean of its channel's difference before the recording's
 first command taken off (a thermistor's offset is no part of the model).
 """
@@ -88,13 +89,21 @@ def replay_gap_deg(rec: Recording, params: NeckParams | str | Path | None,
 
 
 def report_offset_deg(report: Mapping) -> np.ndarray:
-    """The IMU zero offset (x, y, deg) a diagnosis report fitted."""
+    """The IMU zero offset (x, y, deg) fitted with the exported model (``export.sensors``; a
+    report written before 2026-12-07 has only the nominal refit's, in ``calibration``)."""
+    sensors = (report.get("export") or {}).get("sensors")
+    if sensors is not None:
+        return np.array([sensors["offset_x_deg"], sensors["offset_y_deg"]])
     cal = report["calibration"]["params"]
     return np.array([cal["offset_x_deg"]["value"], cal["offset_y_deg"]["value"]])
 
 
 def report_thermistor_lag_s(report: Mapping) -> float:
-    """The thermistors' lag a diagnosis report fitted (0 s where it fitted none)."""
+    """The thermistors' lag fitted with the exported model (0 s where none was fitted; as
+    ``report_offset_deg``, the nominal refit's in an older report)."""
+    sensors = (report.get("export") or {}).get("sensors")
+    if sensors is not None:
+        return float(sensors["thermistor_lag_s"])
     return float(report["calibration"]["params"].get("thermistor_lag_s", {}).get("value", 0.0))
 
 
@@ -120,7 +129,7 @@ def replay_dataset(dataset: str | Path, report: Mapping | str | Path,
     if "params" not in outputs:
         raise ValueError("the report names no exported model (outputs.params): write it with "
                          "neck-gap DATASET --json REPORT.json")
-    if "calibration" not in report:
+    if "calibration" not in report and "sensors" not in (report.get("export") or {}):
         raise ValueError("the report has no calibration (the IMU zero offset the replay adds): "
                          "is it a neck-gap report?")
     params = _beside(outputs["params"], report_dir)

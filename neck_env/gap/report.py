@@ -341,6 +341,19 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
     return _clean(report)
 
 
+def export_sensors(dg: "D.Diagnosis") -> dict[str, float]:
+    """The sensor side of the fit the corrected-model files come from, which NeckParams does
+    not hold: the IMU zero offset (deg) to add to the env's tilt and the thermistors' lag (s)
+    to read its spring temperatures through. ``calibration.params`` holds the nominal refit's,
+    which without the verdict's effects absorbs some of them (independent 12621: a 0.85 s
+    delay left out put the nominal lag at 2.0 s against the verdict fit's 0.97 s; replayed
+    with the nominal's, the delay's export missed the thermistors by 4.6 C instead of 0.8 C)."""
+    st = (dg.exported or dg.final).setting()
+    return {"offset_x_deg": _r(st.get("offset_x_deg", 0.0), 6),
+            "offset_y_deg": _r(st.get("offset_y_deg", 0.0), 6),
+            "thermistor_lag_s": _r(st.get("thermistor_lag_s", 0.0), 6)}
+
+
 def _export_entry(dg: "D.Diagnosis") -> dict:
     """The report's ``export``: the structural discrepancy and the terminals' heat path the
     corrected-model files carry on top of the verdict (``diagnose._export``); each None when
@@ -348,7 +361,7 @@ def _export_entry(dg: "D.Diagnosis") -> dict:
     x = dg.export
     if x is None:
         return {"structure": None, "params": {}, "evidence": None, "terminals": None,
-                "exported": False,
+                "exported": False, "sensors": export_sensors(dg),
                 "note": "no generic structural discrepancy improved the held-out tilt or "
                         "temperatures significantly and the held-out temperatures did not need "
                         "the terminals' heat path: the files carry the baseline and the "
@@ -361,6 +374,7 @@ def _export_entry(dg: "D.Diagnosis") -> dict:
             "params": {k: _r(v, 6) for k, v in x["params"].items()},
             "terminals": (None if x["terminals"] is None
                           else {k: _r(v, 6) for k, v in x["terminals"].items()}),
+            "sensors": export_sensors(dg),
             "note": (f"{what}, fitted with the verdict on every recording, so that NeckTrack-v0 "
                      f"built from the files moves and cools as this rig does; not an effect and "
                      f"not in the verdict"
