@@ -19,8 +19,10 @@ recordings is replayed in ``NeckTrack-v0`` (``neck_env.gap.replay``) built from
 
 Printed per dataset: what the export carried beyond the verdict (a structural discrepancy, the
 terminals' heat path), the median replay error per recording of each model, in the tilt and,
-through the fitted thermistor lag, in the springs' temperatures; over the datasets where it
-carried something, the paired ratio export / verdict only (median, range, how often worse).
+through the thermistor lag fitted with it, in the springs' temperatures; over the datasets
+where it carried something, the paired ratio export / verdict only (median, range, how often
+worse). The export is the rig as it is now: where a draft started during the session, only the
+recordings after its onset are replayed (the independent rig's truth says which).
 """
 
 from __future__ import annotations
@@ -58,13 +60,22 @@ def generate(generator: str, out: Path, seed: int, protocol: str, effects: list[
     return g(out, effects, seed=seed, protocol=protocol, temperatures=True)
 
 
+def as_now(truth: dict) -> list[bool]:
+    """Which recordings of a generated dataset hold the rig as it was at its last recording:
+    the export is the rig as it is now (a draft seen to start blows in it), so recordings from
+    before a draft's onset (the independent rig's per-recording ``h_multiplier``) would measure
+    the draft's absence, not the export. The third rig's truth does not say: all of them."""
+    h = [r.get("h_multiplier") for r in truth["recordings"]]
+    return [x is None or x == h[-1] for x in h]
+
+
 def run_seed(a: argparse.Namespace, seed: int, root: Path) -> dict:
     done = root / f"result_{seed}.json"
     if a.resume and done.exists():
         return json.loads(done.read_text())
     seen, unseen = root / f"ds_{seed}", root / f"ds_{seed}_drawn"
     truth = generate(a.generator, seen, seed, "mixed", a.effects, a.convection)
-    generate(a.generator, unseen, seed, "drawn", a.effects, a.convection)
+    later = generate(a.generator, unseen, seed, "drawn", a.effects, a.convection)
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()):
         dg = D.diagnose(read_dataset(seen), still_air=a.still_air)
@@ -77,10 +88,12 @@ def run_seed(a: argparse.Namespace, seed: int, root: Path) -> dict:
     off_v = (st.get("offset_x_deg", 0.0), st.get("offset_y_deg", 0.0))
     lag_v = st.get("thermistor_lag_s", 0.0)
     recs = read_dataset(unseen).recordings
+    recs = [r for r, now in zip(recs, as_now(later)) if now]
     runs = {"exported": [replay(r, rep["outputs"]["params"], effects, off, lag) for r in recs],
             "verdict_only": [replay(r, verdict_only, effects, off_v, lag_v) for r in recs],
             "defaults": [replay(r, None, None, (0.0, 0.0), lag) for r in recs]}
     out = {"seed": seed, "truth": truth["effects"], "verdict": rep["verdict"],
+           "replayed": [r.name for r in recs],
            "export": rep["export"], "seconds": seconds,
            **{f"{k}_deg": [x["tilt_deg"] for x in v] for k, v in runs.items()},
            **{f"{k}_C": [x["temperature_C"] for x in v] for k, v in runs.items()}}

@@ -323,6 +323,23 @@ def test_replay_takes_the_sensors_of_the_exported_fit_and_an_older_reports_calib
     assert report_thermistor_lag_s(rep) == 0.97
 
 
+def test_the_export_benchmark_replays_the_rig_as_it_is_now(tmp_path):
+    # benchmarks/gap_export.py: the export is the rig as it is now (a draft seen to start blows
+    # in it), so only recordings from the draft's onset on are replayed
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        from gap_export import as_now
+    finally:
+        sys.path.pop(0)
+    from neck_env.gap import independent
+
+    draft = {"convection_change": {"mode": "draft", "gain": 2.0, "from_recording_index": 3}}
+    truth = independent.generate(tmp_path / "d", draft, seed=5, n_recordings=5, duration_s=8.0)
+    assert as_now(truth) == [False, False, False, True, True]
+    truth = independent.generate(tmp_path / "n", [], seed=5, n_recordings=5, duration_s=8.0)
+    assert as_now(truth) == [True] * 5
+
+
 def test_replay_refuses_a_report_without_an_export_and_a_missing_dataset(tmp_path, capsys):
     from neck_env.gap.replay import main as replay_main
 
