@@ -375,6 +375,15 @@ def test_replay_reads_the_tilt_through_an_exported_imu_misalignment(tmp_path):
     rep = {"outputs": {"params": str(tmp_path / "p.json"), "effects": str(tmp_path / "e.json")},
            "calibration": {"params": zero}}
     with_mount = replay_dataset(tmp_path / "ds", rep)["exported_deg"]
+    # the console tool writes the same figures where asked
+    from neck_env.gap.replay import main as replay_main
+    (tmp_path / "r.json").write_text(json.dumps(rep))
+    assert replay_main([str(tmp_path / "ds"), str(tmp_path / "r.json"),
+                        "--json", str(tmp_path / "out.json")]) == 0
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert [r["name"] for r in doc["recordings"]] == ["rec_01", "rec_02", "rec_03"]
+    assert [r["exported_deg"] for r in doc["recordings"]] == pytest.approx(with_mount, abs=1e-4)
+    assert doc["recordings"][0]["exported_C"] is None and doc["median"]["exported_C"] is None
     (tmp_path / "e.json").write_text("{}")
     without = replay_dataset(tmp_path / "ds", rep)["exported_deg"]
     assert np.all(with_mount < 0.05), with_mount

@@ -1,6 +1,6 @@
 """Replay a rig's recordings in ``NeckTrack-v0`` built from a diagnosis' corrected-model files.
 
-``python -m neck_env.gap.replay DATASET_DIR REPORT.json`` prints, per recording, the RMS tilt
+``python -m neck_env.gap.replay DATASET_DIR REPORT.json [--json OUT.json]`` prints, per recording, the RMS tilt
 error (per tilt component, deg) between the recording and the env loaded from
 ``REPORT_params.json`` / ``REPORT_effects.json``, and the same for the defaults' rig: how far
 the exported model reproduces this rig (``docs/gap.md``, method item 11).
@@ -152,6 +152,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("dataset", help="the recordings' folder the report was made from")
     ap.add_argument("report", help="the neck-gap JSON report (its outputs name the model files)")
     ap.add_argument("--recordings", type=int, default=None, help="replay only the first N")
+    ap.add_argument("--json", default=None, metavar="PATH",
+                    help="also write the errors per recording and their medians here")
     a = ap.parse_args(argv)
     try:
         out = replay_dataset(a.dataset, a.report, a.recordings)
@@ -167,6 +169,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     med = lambda k: np.nanmedian(out[k]) if np.isfinite(out[k]).any() else np.nan
     print(f"{'median':16s} {med('exported_deg'):15.3f} {med('defaults_deg'):15.3f} "
           f"{med('exported_C'):13.2f} {med('defaults_C'):13.2f}")
+    if a.json:
+        keys = ("exported_deg", "defaults_deg", "exported_C", "defaults_C")
+        num = lambda v: None if not np.isfinite(v) else round(float(v), 4)  # JSON has no NaN
+        doc = {"dataset": str(a.dataset), "report": str(a.report),
+               "recordings": [{"name": n, **{k: num(out[k][i]) for k in keys}}
+                              for i, n in enumerate(out["names"])],
+               "median": {k: num(med(k)) for k in keys},
+               "doc": "RMS error per tilt component (deg) and per thermistor (C, each channel's "
+                      "offset before the first command taken off) of NeckTrack-v0 built from "
+                      "the report's export and of the defaults, replaying each recording's "
+                      "commanded currents; null where a recording has no thermistor readings"}
+        try:
+            Path(a.json).write_text(json.dumps(doc, indent=2) + "\n")
+        except OSError as e:
+            print(f"error: cannot write {a.json}: {e}", file=sys.stderr)
+            return 2
     return 0
 
 
