@@ -707,6 +707,26 @@ def test_blind_independent_rig(tmp_path, effects, seed):
         assert w["warms"] and w["F"] > w["F_crit"], w
 
 
+def test_a_creep_is_named_where_the_thermistors_deny_the_delay_that_rivalled_it(tmp_path):
+    """The independent rig of gap_blind's fresh suite, seed 12517: a backbone creeping with
+    tau 1.4 s (stiffness ratio 2.9). Its fit rests at the edge of the catalogue's range, and a
+    0.76 s actuation delay inside its own range was significant too, so the creep yielded and
+    the delay was named -- while the delay's fit left the springs' held-out temperatures
+    0.67 -> 1.14 C. A current that acts late heats the springs late: the thermistors deny the
+    delay, and the creep, far beyond the F test (held-out gap 1.165 -> 0.39 deg), is named."""
+    from neck_env.gap import independent
+
+    ds = tmp_path / "ds"
+    independent.generate(ds, ["backbone_viscoelasticity"], seed=12517, baseline="wide",
+                         temperatures=True)
+    rep = _diagnose(ds, tmp_path)
+    _check_contract(rep)
+    assert rep["verdict"] == ["backbone_viscoelasticity"], rep["verdict"]
+    delay = next(e for e in rep["effects"] if e["name"] == "actuation_delay")
+    assert "further off" in delay["unresolved"], delay["unresolved"]
+    assert delay["heldout_T"]["rms_after_C"] > 1.2 * delay["heldout_T"]["rms_before_C"]
+
+
 # The third rig (neck_env.gap.third), written apart from this model and the independent rig:
 # rigid segments on joints, two springs in series per muscle, its own kinetics law, a second
 # thermal node and a Mahony-fused IMU. Seeds of gap_blind's third suite: an effect-free rig whose

@@ -19,6 +19,7 @@ from neck_env.gap.diagnose import (ALPHA, DRAFT_FROM, MIN_ABS_DEG, MIN_REL, UNEX
                                    by_recordings, compare, MIN_H_CHANGE, h_change, unresolved,
                                    pinned, pinned_alone, by_f_test, grounds, effect_candidate,
                                    mechanics_unidentified, thermistors_disagree, HEAT_BALANCE,
+                                   ON_THE_CURRENT, temperatures_worse, thermistors_deny,
                                    GENERIC_ABSORBERS, absorber_alone)
 from neck_env.gap.fit import Candidate, Fitter
 from neck_env.effects import apply_to_constants
@@ -934,6 +935,48 @@ def test_a_heat_balance_effect_the_thermistors_do_not_see_is_no_evidence():
                                               abs_reduction_C=0.5, F=5.0, F_crit=1.3))
     assert "neighbours' warming" in grounds(warmed)
     assert thermistors_disagree(_single("thermal_coupling"), warmed) == ""
+
+
+def test_a_delay_the_thermistors_deny_is_no_evidence():
+    """``thermistors_deny``: a current acting late heats the springs late, so a delay named on
+    the held-out tilt alone whose fit leaves their held-out temperatures significantly and
+    practically further off is a lag of the mechanics -- the independent rig's seed 12517: a
+    backbone creeping with tau 1.4 s, named as a 0.76 s delay (30 % of a 1.165 deg held-out
+    gap, F 2.05 against 1.68) with the temperatures 0.674 -> 1.140 C (F 0.35) -- while true
+    delays stand, the weakest of the blind suite's (12510: 6 % further off, F 0.89) too."""
+    s12517 = _cmp(gap_before_deg=1.165, gap_after_deg=0.813, reduction=0.302,
+                  abs_reduction_deg=0.352, t=5.0, blocks=35, blocks_improved=26, recordings=5,
+                  recordings_improved=5, n_eff=40.0, F=2.053, F_crit=1.677,
+                  temperatures=_warming(rms_before_C=0.674, rms_after_C=1.140, reduction=-0.69,
+                                        abs_reduction_C=-0.466, F=0.35, F_crit=1.071))
+    assert grounds(s12517) == ("tilt",) and temperatures_worse(s12517.temperatures)
+    said = thermistors_deny(_single("actuation_delay"), s12517)
+    assert "further off (0.67 -> 1.14 C, F 0.35)" in said
+    assert not responsible(replace(s12517, unresolved=said))
+    assert ON_THE_CURRENT == ("actuation_delay",)
+    # an effect that does not act on the current: the thermistors have no say here
+    for effect in ("backbone_viscoelasticity", "backbone_friction", "head_payload"):
+        assert thermistors_deny(_single(effect), s12517) == ""
+    # true delays of the blind runs: 26-61 % closer, and 12510's 6 % further off (F 0.89)
+    for before, after, F, Fc in ((0.986, 0.728, 1.83, 1.06), (1.443, 0.560, 6.65, 1.06),
+                                 (2.351, 2.488, 0.89, 1.08)):
+        w = _warming(rms_before_C=before, rms_after_C=after, reduction=1 - after / before,
+                     abs_reduction_C=before - after, F=F, F_crit=Fc)
+        assert not temperatures_worse(w)
+        assert thermistors_deny(_single("actuation_delay"), replace(s12517, temperatures=w)) == ""
+    # each of the three tests alone is not enough: significance, 20 %, 0.1 C
+    for w in (_warming(rms_before_C=0.674, rms_after_C=0.85, reduction=-0.26,
+                       abs_reduction_C=-0.176, F=0.95, F_crit=1.07),   # not significant
+              _warming(rms_before_C=2.0, rms_after_C=2.3, reduction=-0.15,
+                       abs_reduction_C=-0.3, F=0.76, F_crit=1.07),     # under 20 %
+              _warming(rms_before_C=0.2, rms_after_C=0.28, reduction=-0.4,
+                       abs_reduction_C=-0.08, F=0.51, F_crit=1.07)):   # under 0.1 C
+        assert not temperatures_worse(w)
+    # no thermistors: nothing to deny; named on more than the tilt: not the tilt alone
+    assert thermistors_deny(_single("actuation_delay"), replace(s12517, temperatures=None)) == ""
+    warmed = replace(s12517, warming=_warming(rms_before_C=0.8, rms_after_C=0.3, reduction=0.625,
+                                              abs_reduction_C=0.5, F=5.0, F_crit=1.3))
+    assert thermistors_deny(_single("actuation_delay"), warmed) == ""
 
 
 def test_a_generic_absorber_alone_is_named_on_the_tilt_only_by_the_f_test():
