@@ -84,9 +84,8 @@ def run_seed(a: argparse.Namespace, seed: int, root: Path) -> dict:
     effects = json.loads(Path(rep["outputs"]["effects"]).read_text())
     verdict_only = dg.model.params_of(dg.final.values)
     off, lag = report_offset_deg(rep), report_thermistor_lag_s(rep)
-    st = dg.final.setting()  # the verdict model's own sensor fit
-    off_v = (st.get("offset_x_deg", 0.0), st.get("offset_y_deg", 0.0))
-    lag_v = st.get("thermistor_lag_s", 0.0)
+    own = R.sensors_of(dg.final.setting())  # the verdict model's own sensor fit
+    off_v, lag_v = (own["offset_x_deg"], own["offset_y_deg"]), own["thermistor_lag_s"]
     recs = read_dataset(unseen).recordings
     recs = [r for r, now in zip(recs, as_now(later)) if now]
     runs = {"exported": [replay(r, rep["outputs"]["params"], effects, off, lag) for r in recs],

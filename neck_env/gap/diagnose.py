@@ -2132,8 +2132,8 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
     # an effect pinned at the edge of its range yields to one responsible inside its own, and
     # alone needs the F test, as does a generic absorber; one on the springs' heat balance needs the
     # thermistors not to say otherwise; one only the tilt shows needs the mechanics pinned
-    # (the Jacobian only where not pinned)
-    # (one the thermistors deny is no effect responsible inside its range)
+    # (the Jacobian only where not pinned); one the thermistors deny (a delay they read as
+    # none) is no effect responsible inside its range
     held = {c.name: pinned(c) for c in sig}
     denied = {c.name: thermistors_deny(c, single_cmp[c.name]) for c in sig}
     demote = any(not held[n] and not denied[n] for n in held)

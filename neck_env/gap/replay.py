@@ -1,7 +1,7 @@
 """Replay a rig's recordings in ``NeckTrack-v0`` built from a diagnosis' corrected-model files.
 
-``python -m neck_env.gap.replay DATASET_DIR REPORT.json [--json OUT.json]`` prints, per recording, the RMS tilt
-error (per tilt component, deg) between the recording and the env loaded from
+``python -m neck_env.gap.replay DATASET_DIR REPORT.json [--json OUT.json]`` prints, per
+recording, the RMS tilt error (per tilt component, deg) between the recording and the env loaded from
 ``REPORT_params.json`` / ``REPORT_effects.json``, and the same for the defaults' rig: how far
 the exported model reproduces this rig (``docs/gap.md``, method item 11).
 
@@ -11,9 +11,8 @@ over-temperature cut; each row's currents hold until the next row, where the pos
 The env's head pose read as the diagnosis reads it (the sensor chain's settled accelerometer
 tilt, through the exported ``imu_misalignment``'s mount where there is one) plus the IMU zero
 offset fitted with the exported model (the report's ``export.sensors``) is compared with the
-recorded tilt. Where the recordings hold thermistor columns,
-the springs' temperatures (``info``, read through the thermistor lag fitted with it) are
-compared too, each reading with the mean of its channel's difference before the recording's
+recorded tilt. Where the recordings hold thermistor columns, the springs' temperatures
+(``info``, read through the thermistor lag fitted with it) are compared too, each reading with the mean of its channel's difference before the recording's
 first command taken off (a thermistor's offset is no part of the model).
 """
 

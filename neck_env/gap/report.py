@@ -7,7 +7,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -348,10 +348,13 @@ def export_sensors(dg: "D.Diagnosis") -> dict[str, float]:
     which without the verdict's effects absorbs some of them (independent 12621: a 0.85 s
     delay left out put the nominal lag at 2.0 s against the verdict fit's 0.97 s; replayed
     with the nominal's, the delay's export missed the thermistors by 4.6 C instead of 0.8 C)."""
-    st = (dg.exported or dg.final).setting()
-    return {"offset_x_deg": _r(st.get("offset_x_deg", 0.0), 6),
-            "offset_y_deg": _r(st.get("offset_y_deg", 0.0), 6),
-            "thermistor_lag_s": _r(st.get("thermistor_lag_s", 0.0), 6)}
+    return sensors_of((dg.exported or dg.final).setting())
+
+
+def sensors_of(setting: Mapping[str, float]) -> dict[str, float]:
+    """A fit's IMU zero offset (deg) and thermistor lag (s; 0 where none was fitted)."""
+    return {k: _r(setting.get(k, 0.0), 6)
+            for k in ("offset_x_deg", "offset_y_deg", "thermistor_lag_s")}
 
 
 def _export_entry(dg: "D.Diagnosis") -> dict:
