@@ -34,7 +34,7 @@ from ..recording import Recording, read_dataset
 from ..sensors import thermistor_lag_series
 from .model import imu_tilt, tilt_vec
 
-__all__ = ["replay", "replay_gap_deg", "replay_dataset", "report_offset_deg",
+__all__ = ["replay", "replay_dataset", "report_offset_deg",
            "report_thermistor_lag_s", "main"]
 
 
@@ -80,17 +80,15 @@ def replay(rec: Recording, params: NeckParams | str | Path | None,
     return out
 
 
-def replay_gap_deg(rec: Recording, params: NeckParams | str | Path | None,
-                   effects: Mapping[str, Mapping[str, float]] | None = None,
-                   offset_deg: Sequence[float] = (0.0, 0.0)) -> float:
-    """RMS tilt error (per component, deg) of ``replay``."""
-    return replay(rec, params, effects, offset_deg)["tilt_deg"]
+def _export_sensors(report: Mapping) -> Mapping | None:
+    """The exported fit's sensors (``export.sensors``); None in a report older than them."""
+    return (report.get("export") or {}).get("sensors")
 
 
 def report_offset_deg(report: Mapping) -> np.ndarray:
     """The IMU zero offset (x, y, deg) fitted with the exported model (``export.sensors``; a
     report written before 2026-12-07 has only the nominal refit's, in ``calibration``)."""
-    sensors = (report.get("export") or {}).get("sensors")
+    sensors = _export_sensors(report)
     if sensors is not None:
         return np.array([sensors["offset_x_deg"], sensors["offset_y_deg"]])
     cal = report["calibration"]["params"]
@@ -100,7 +98,7 @@ def report_offset_deg(report: Mapping) -> np.ndarray:
 def report_thermistor_lag_s(report: Mapping) -> float:
     """The thermistors' lag fitted with the exported model (0 s where none was fitted; as
     ``report_offset_deg``, the nominal refit's in an older report)."""
-    sensors = (report.get("export") or {}).get("sensors")
+    sensors = _export_sensors(report)
     if sensors is not None:
         return float(sensors["thermistor_lag_s"])
     return float(report["calibration"]["params"].get("thermistor_lag_s", {}).get("value", 0.0))
@@ -128,7 +126,7 @@ def replay_dataset(dataset: str | Path, report: Mapping | str | Path,
     if "params" not in outputs:
         raise ValueError("the report names no exported model (outputs.params): write it with "
                          "neck-gap DATASET --json REPORT.json")
-    if "calibration" not in report and "sensors" not in (report.get("export") or {}):
+    if "calibration" not in report and _export_sensors(report) is None:
         raise ValueError("the report has no calibration (the IMU zero offset the replay adds): "
                          "is it a neck-gap report?")
     params = _beside(outputs["params"], report_dir)
