@@ -727,6 +727,30 @@ def test_a_creep_is_named_where_the_thermistors_deny_the_delay_that_rivalled_it(
     assert delay["heldout_T"]["rms_after_C"] > 1.2 * delay["heldout_T"]["rms_before_C"]
 
 
+def test_a_second_thermal_effect_is_named_on_the_temperatures_its_pair_explains(tmp_path):
+    """The independent rig of gap_blind's fresh suite, seed 12535: a thermal coupling
+    (0.0087 W/K) and a convection growing 0.0094/K. The coupling is named on the cold
+    neighbours' warming; the convection beside it took 20 % of the held-out tilt left by the
+    coupling, not consistently enough for the tilt's tests, and the pair was refused -- while
+    the springs' held-out temperatures the coupling left (1.86 C) fell to 0.38 C with it. A pair
+    adding a thermal effect is judged on the temperatures as a single one is."""
+    from neck_env.gap import independent
+
+    ds = tmp_path / "ds"
+    independent.generate(ds, ["convection_change", "thermal_coupling"], seed=12535,
+                         baseline="wide", temperatures=True)
+    rep = _diagnose(ds, tmp_path)
+    _check_contract(rep)
+    assert sorted(rep["verdict"]) == ["convection_change", "thermal_coupling"], rep["verdict"]
+    pair = next(p for p in rep["pairs"] if set(p["effects"]) == set(rep["verdict"]))
+    assert pair["significant"] and pair["heldout_T"]["fits"], pair
+    assert pair["heldout_T"]["rms_after_C"] < 0.5 * pair["heldout_T"]["rms_before_C"], pair
+    # the pairs built on the coupling carry the comparison exactly where they add a thermal effect
+    for p in rep["pairs"]:
+        added = [n for n in p["effects"] if n != "thermal_coupling"]
+        assert ("heldout_T" in p) == any(fx.EFFECTS[n].thermal for n in added), p["name"]
+
+
 # The third rig (neck_env.gap.third), written apart from this model and the independent rig:
 # rigid segments on joints, two springs in series per muscle, its own kinetics law, a second
 # thermal node and a Mahony-fused IMU. Seeds of gap_blind's third suite: an effect-free rig whose

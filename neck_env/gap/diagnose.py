@@ -2207,12 +2207,16 @@ def _decide(run: _Run, nominal: Candidate, att: _Attribution) -> _Decision:
         pair_cmp = _fit_and_judge_pairs(fitter, data, pairs, lambda p: control, nominal,
                                         run.hold_rec, run.hold_mask, run.max_iter, responsible,
                                         rival, rival_sig, demote_pinned=demote,
-                                        reference_from_pairs=True)
+                                        reference_from_pairs=True, heat_rivals=rivals)
         for p in pairs[:PAIR_TOP]:
             s = pair_cmp[p.name]
             say(f"  pair {p.name:40s} held-out gap {s.gap_before_deg:.3f} -> "
                 f"{s.gap_after_deg:.3f} deg ({100 * s.reduction:+.0f} % vs {first}, "
-                f"t = {s.t:.1f}){'  *' if s.accepted else ''}")
+                f"t = {s.t:.1f})"
+                + ("" if s.temperatures is None else
+                   f"; temperatures {s.temperatures.rms_before_C:.2f} -> "
+                   f"{s.temperatures.rms_after_C:.2f} C{' (heats)' if heats(s) else ''}")
+                + f"{'  *' if s.accepted else ''}")
         good = [p for p in pairs if pair_cmp[p.name].accepted]
         if good:
             verdict_c = good[0]
@@ -2606,7 +2610,8 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
                          max_iter: int, accept, best_null: Candidate | None = None,
                          rival: bool = False, demote_pinned: bool = False,
                          reference_from_pairs: bool = False,
-                         each_member: bool = False) -> dict[str, Comparison]:
+                         each_member: bool = False,
+                         heat_rivals: Sequence[Candidate] = ()) -> dict[str, Comparison]:
     """Fit the pairs in lockstep; compare each on held-out data with ``reference(pair)``, with
     the nominal refit (``vs_nominal``) and with the best structural discrepancy
     (``vs_structure``; ``rival``: it is itself significant), mark ``accepted`` by
@@ -2622,7 +2627,16 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     11608, a convection change on a wide baseline: beside it a supply limit left the held-out
     recordings as they were with it switched off, 0.293 deg either way, and the pair with a
     payload at its 0.45 kg bound ended at the same 0.293 deg; each pair beat its better single
-    alone, 0.390 and 0.403 deg, and the payload's was named)."""
+    alone, 0.390 and 0.403 deg, and the payload's was named).
+
+    A pair that adds an effect on the springs' temperatures (``Effect.thermal``) to its
+    reference carries its held-out thermistor comparison against the reference's fit closest
+    on them (``closest_temperatures``) and against the best of ``heat_rivals`` (structural
+    discrepancies on the same footing) that fits them (``temperature_evidence``), as a single
+    does against the nominal refit: ``heats`` and the ``temperatures`` grounds then judge the
+    second effect as they judge a first one (independent rig 12535: a convection beside a
+    named coupling took 20 % of the tilt the coupling left, t 1.7, and 79 % of its held-out
+    temperatures)."""
     fitter.run(pairs, max_iter=max_iter)
     for p in pairs:
         settle_draft(fitter.model, p, hold_rec, hold_mask)
@@ -2631,8 +2645,8 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
                                      for n in p.effects])
     offs = iter(off_list)
     # each effect alone as the pairs' fits left it: the best of those held out, once per effect
-    left = ({n: strongest(data, hold_mask, ps) for n, ps in singles_left(pairs, off_list).items()}
-            if reference_from_pairs or each_member else {})
+    left_all = singles_left(pairs, off_list) if reference_from_pairs or each_member else {}
+    left = {n: strongest(data, hold_mask, ps) for n, ps in left_all.items()}
     cmp: dict[str, Comparison] = {}
     for p in pairs:
         ref = reference(p)
@@ -2643,8 +2657,22 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
         # the member that acts least: one that does not act at all, else the smaller change
         vs_off, vs_off_heldout = min(members, key=lambda m: (
             any(switching_off_matters(o) for o in m), m[0].gap_before_deg))
-        c = replace(compare_effect(data, ref_pred, p, hold_mask, ref.effects),
-                    vs_nominal=compare(data, nominal.pred, p.pred, hold_mask),
+        c = compare_effect(data, ref_pred, p, hold_mask, ref.effects)
+        if data.meas_T is not None and any(fx.EFFECTS[n].thermal for n in p.effects
+                                           if n not in ref.effects):
+            # the reference's temperatures are the best any of its fits reached, as its tilt
+            # is: the fit chosen on the tilt may have left them where the single's own did not
+            # (third rig 12805, a supply limit: 0.19 C held out alone, 0.84 C as a pair left
+            # it, which every thermal second effect then "explained" by 73-78 %)
+            t_ref = closest_temperatures(data, hold_mask, [ref.pred] + [
+                q for n in pair_alone(ref, p, each_member) for q in left_all.get(n, [])])
+            heat = temperature_evidence(
+                data, t_ref, [p], heat_rivals,
+                null_temperatures(data, t_ref, heat_rivals, hold_mask), hold_mask)
+            if p.name in heat:
+                c = replace(c, temperatures=heat[p.name][0],
+                            temperatures_vs_structure=heat[p.name][1])
+        c = replace(c, vs_nominal=compare(data, nominal.pred, p.pred, hold_mask),
                     vs_structure=(compare(data, best_null.pred, p.pred, hold_mask)
                                   if best_null is not None else None),
                     structure_significant=rival, vs_off=vs_off, vs_off_heldout=vs_off_heldout,
@@ -2685,8 +2713,23 @@ def pair_reference(data: Prepared, mask: np.ndarray, ref: Candidate, pair: Candi
     nominal refit), or the strongest on ``mask`` of it and what the pairs' fits left alone
     (``left``: ``singles_left``'s strongest per effect) of ``ref``'s effect -- or, with
     ``each_member``, of either member of the pair."""
-    alone = pair.effects if each_member else ref.effects if len(ref.effects) == 1 else ()
-    return strongest(data, mask, [ref.pred] + [left[n] for n in alone if n in left])
+    return strongest(data, mask, [ref.pred] + [left[n] for n in pair_alone(ref, pair, each_member)
+                                               if n in left])
+
+
+def pair_alone(ref: Candidate, pair: Candidate, each_member: bool) -> tuple[str, ...]:
+    """The effects whose fits left alone by the pairs may stand in for ``pair``'s reference
+    ``ref`` (``pair_reference``): either member with ``each_member``, else ``ref``'s single
+    effect."""
+    return tuple(pair.effects) if each_member else ref.effects if len(ref.effects) == 1 else ()
+
+
+def closest_temperatures(data: Prepared, mask: np.ndarray,
+                         preds: Sequence[Prediction]) -> Prediction:
+    """The prediction whose thermistor residual (``rise_residual``) is smallest on the held-out
+    readings of ``mask``: ``strongest`` on the temperatures."""
+    sel = data.T_read & mask[:, None]
+    return min(preds, key=lambda q: float((np.where(sel, rise_residual(data, q), 0.0) ** 2).sum()))
 
 
 def strongest(data: Prepared, mask: np.ndarray, preds: Sequence[Prediction]) -> Prediction:

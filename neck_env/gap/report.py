@@ -222,6 +222,7 @@ def build_report(dg: "D.Diagnosis", dataset_path: str | Path | None = None) -> d
             "significant": bool(s.accepted),
             "unresolved": s.unresolved,
             **_warming(s),
+            **_temperatures(s),
         })
     loc = [{"signal": it["signal"], "phase": it["phase"], "muscle": it["muscle"],
             "share": _r(it["share"]), "time_fraction": _r(it["time_fraction"]),
