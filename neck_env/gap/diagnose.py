@@ -2648,6 +2648,7 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
     left_all = singles_left(pairs, off_list) if reference_from_pairs or each_member else {}
     left = {n: strongest(data, hold_mask, ps) for n, ps in left_all.items()}
     cmp: dict[str, Comparison] = {}
+    rival_heat: dict[int, dict[str, Warming | None]] = {}  # per temperature reference (by id)
     for p in pairs:
         ref = reference(p)
         ref_pred = pair_reference(data, hold_mask, ref, p, left, each_member)
@@ -2666,9 +2667,10 @@ def _fit_and_judge_pairs(fitter: Fitter, data: Prepared, pairs: list[Candidate],
             # it, which every thermal second effect then "explained" by 73-78 %)
             t_ref = closest_temperatures(data, hold_mask, [ref.pred] + [
                 q for n in pair_alone(ref, p, each_member) for q in left_all.get(n, [])])
-            heat = temperature_evidence(
-                data, t_ref, [p], heat_rivals,
-                null_temperatures(data, t_ref, heat_rivals, hold_mask), hold_mask)
+            if id(t_ref) not in rival_heat:  # most pairs share one reference: its rivals once
+                rival_heat[id(t_ref)] = null_temperatures(data, t_ref, heat_rivals, hold_mask)
+            heat = temperature_evidence(data, t_ref, [p], heat_rivals, rival_heat[id(t_ref)],
+                                        hold_mask)
             if p.name in heat:
                 c = replace(c, temperatures=heat[p.name][0],
                             temperatures_vs_structure=heat[p.name][1])
