@@ -44,6 +44,7 @@ class FakeFirmware:
         self.heartbeat_trips = 0
         self.received: list[P.Message] = []
         self.relay_on_log: list[tuple[float, int]] = []  # (monotonic time, mask) on changes
+        self.telemetry_log: list[float] = []  # monotonic time of every telemetry frame sent
         self._t0 = time.monotonic()
         self._last_valid = time.monotonic()
         self._armed = False
@@ -64,6 +65,10 @@ class FakeFirmware:
     # -- time and relays ------------------------------------------------------------------------
     def millis(self) -> int:
         return int((time.monotonic() - self._t0) * 1000)
+
+    def telemetry_sent_since(self, t: float) -> int:
+        """How many telemetry frames were sent after monotonic time `t`."""
+        return sum(1 for s in list(self.telemetry_log) if s > t)
 
     def _update_relays(self) -> None:
         now = self.millis()
@@ -201,6 +206,7 @@ class FakeFirmware:
                         self.heartbeat_trips += 1
                 if self.stream_hz and not self.silent and now >= next_tel:
                     self._send(P.MsgType.TELEMETRY, self._next_tx(), self._status_payload())
+                    self.telemetry_log.append(now)
                     next_tel = max(next_tel, now - 0.5 / self.stream_hz) + 1.0 / self.stream_hz
             try:
                 conn.close()

@@ -659,10 +659,12 @@ class HardwareNeckEnv(gym.Env):
                 break
             self.link.check()
             time.sleep(min(0.005, deadline - now))
-        late = now - deadline
+        # the wait for telemetry delayed by a stall belongs to this step: late_s says when the
+        # step really ended, and the relay stayed on through it
+        self._drain_after_stall()
+        late = time.monotonic() - deadline
         if late > self.dt:
             self._t_start += late  # re-anchor: a slow policy stretches the episode, not the physics
-        self._drain_after_stall()
         with self._lock:
             tm, age = self._last, time.monotonic() - self._last_host_t
             on_ms, span_ms = self._on_ms.copy(), self._span_ms
