@@ -21,7 +21,9 @@ A **dataset** is a folder of recordings (``*.csv``), in time order by file name 
 (the synthetic generator writes its ground truth *outside* the folder).
 
 Every reading error is a :class:`RecordingError` (a ``ValueError``) whose message names the
-file and, where it applies, the line (the header is line 1). A reader asked to
+file and, where it applies, the line (the header is line 1); the units are checked where a
+slip is common and silent (a current in mA, ``t`` in ms, ``meta.json``'s ``sample_hz`` against
+the time stamps). A reader asked to
 (``imu_gap_max_s``) fills short runs of missing ``theta_deg``/``phi_deg`` readings instead
 (``fill_imu_gaps``).
 
@@ -56,6 +58,15 @@ META_KEYS = ("ambient_C", "sample_hz", "muscle_azimuth_deg", "spring_wire_diamet
 WIRE_META_RANGES = {"spring_wire_diameter_m": (5e-5, 5e-3, "m, e.g. 0.0005 for 0.5 mm"),
                     "spring_specific_heat_J_kgK": (100.0, 2000.0, "J/(kg K), e.g. 837")}
 META_FILE = "meta.json"
+# The format's units where a slip is common and silent: an Arduino's millis() logged as t, a
+# current logged in mA. Both make the diagnosis simulate nonsense for hours instead of failing.
+# No SMA spring of this class takes 40 A (the paper's 0.5 mm wire runs at 4-8 A), and the neck
+# moves within a second, so a log sparser than one sample a second is not one this tool reads.
+MAX_CURRENT_A = 40.0
+MAX_SAMPLE_INTERVAL_S = 1.0
+# meta.json's sample_hz against the time stamps: a logger's jitter or a dropped sample moves the
+# median interval by far less than this factor; a wrong unit or a wrong rate does not.
+SAMPLE_HZ_TOLERANCE = 3.0
 
 
 class RecordingError(ValueError):
@@ -245,6 +256,13 @@ def read_recording(path: str | Path, imu_gap_max_s: float = 0.0) -> Recording:
         r, k = neg[0]
         raise RecordingError(path, f"commanded current i{k + 1} = {cur[r, k]:g} A is negative",
                              rows[r][0])
+    big = np.argwhere(cur > MAX_CURRENT_A)
+    if big.size:
+        r, k = big[0]
+        raise RecordingError(path, current_unit_problem(f"i{k + 1}", float(cur[r, k])), rows[r][0])
+    interval = sample_interval_problem(t)
+    if interval:
+        raise RecordingError(path, interval)
     theta = values[:, 4]
     neg = np.flatnonzero(theta < 0)
     if neg.size:
@@ -267,6 +285,26 @@ def read_recording(path: str | Path, imu_gap_max_s: float = 0.0) -> Recording:
             extra[c] = np.array(vals, dtype=object)
     return Recording(t=t, currents_A=cur, theta_deg=theta, phi_deg=phi, temperatures_C=temps,
                      extra=extra, name=path.stem, path=path, imu_filled=filled)
+
+
+def current_unit_problem(column: str, value_A: float) -> str:
+    """What is wrong with a commanded current above ``MAX_CURRENT_A`` (the message)."""
+    return (f"commanded current {column} = {value_A:g} A is more than any SMA spring of this "
+            f"class takes (the paper's run at 4-8 A; the format stops at {MAX_CURRENT_A:g} A): "
+            f"currents are in amperes -- if this column is in milliamperes, divide it by 1000")
+
+
+def sample_interval_problem(t: np.ndarray) -> str:
+    """What is wrong with time stamps ``t`` (s) whose median interval exceeds
+    ``MAX_SAMPLE_INTERVAL_S`` (the message; empty when nothing is)."""
+    if t.size < 2:
+        return ""
+    dt = float(np.median(np.diff(t)))
+    if dt <= MAX_SAMPLE_INTERVAL_S:
+        return ""
+    return (f"samples are a median {dt:g} s apart (t {t[0]:g} to {t[-1]:g}): t is in seconds and "
+            f"the neck moves within one, so a rig logs at tens of Hz -- if t counts "
+            f"milliseconds (an Arduino's millis()), divide it by 1000")
 
 
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -444,7 +482,18 @@ def read_dataset(directory: str | Path, imu_gap_max_s: float = 0.0) -> Dataset:
         raise RecordingError(directory, "no *.csv recordings in this folder")
     meta_path = directory / META_FILE
     meta = read_meta(meta_path) if meta_path.exists() else {}
-    return Dataset([read_recording(f, imu_gap_max_s) for f in files], meta, directory)
+    recs = [read_recording(f, imu_gap_max_s) for f in files]
+    hz = meta.get("sample_hz")
+    for f, r in zip(files, recs):
+        if hz is None or r.n < 2:
+            continue
+        dt = float(np.median(np.diff(r.t)))
+        if not 1.0 / SAMPLE_HZ_TOLERANCE <= dt * hz <= SAMPLE_HZ_TOLERANCE:
+            raise RecordingError(meta_path, f"sample_hz {hz:g} means samples 1/{hz:g} = "
+                                            f"{1.0 / hz:.4g} s apart, but {f.name}'s are a median "
+                                            f"{dt:.4g} s apart ({1.0 / dt:.4g} Hz): correct "
+                                            f"sample_hz, or t if it is not in seconds")
+    return Dataset(recs, meta, directory)
 
 
 # -- writing ------------------------------------------------------------------------------------
@@ -466,8 +515,10 @@ class RecordingWriter:
     keyword arguments; required values must be finite; a missing or NaN thermistor reading
     (``T1..T3``: an open or shorted sensor) and other missing extra values are written empty.
     The writer validates what
-    :func:`read_recording` would reject (missing required value, NaN, t not increasing) and
-    raises ``ValueError`` before writing a bad row, so what is on disk always reads back.
+    :func:`read_recording` would reject (missing required value, NaN, t not increasing, a
+    current over ``MAX_CURRENT_A``) and raises ``ValueError`` before writing a bad row, so what
+    is on disk always reads back -- logged at least once a second (``MAX_SAMPLE_INTERVAL_S``:
+    the median interval, which no single row decides).
 
     The file is flushed to the operating system whenever ``flush_s`` of wall time or of
     recorded time has passed since the last flush (and on ``close``), so a crash of the
@@ -521,6 +572,10 @@ class RecordingWriter:
         for k in ("i1", "i2", "i3", "theta_deg"):
             if float(data[k]) < 0:
                 raise ValueError(f"{self.path}: {k} = {data[k]} must be >= 0")
+        for k in ("i1", "i2", "i3"):
+            if float(data[k]) > MAX_CURRENT_A:
+                raise ValueError(f"{self.path}: row {self.rows + 1}: "
+                                 f"{current_unit_problem(k, float(data[k]))}")
         for c in TEMPERATURE_COLUMNS:
             v = data.get(c)
             if v is not None and not isinstance(v, str) and math.isinf(float(v)):
@@ -594,6 +649,12 @@ def write_recording(path: str | Path, recording: Recording | Mapping[str, Sequen
     for c in ("i1", "i2", "i3", "theta_deg"):
         if np.any(req[c] < 0):
             raise ValueError(f"{path}: {c} must be >= 0")
+    for c in ("i1", "i2", "i3"):
+        if np.any(req[c] > MAX_CURRENT_A):
+            raise ValueError(f"{path}: {current_unit_problem(c, float(req[c].max()))}")
+    interval = sample_interval_problem(req["t"])
+    if interval:
+        raise ValueError(f"{path}: {interval}")
     for c in TEMPERATURE_COLUMNS:
         if c in names and np.any(np.isinf(np.asarray(cols[c], float))):
             raise ValueError(f"{path}: column {c} has infinite values (a missing reading is NaN)")

@@ -3,7 +3,6 @@ datasets in name order with meta.json, and the flushing writer."""
 
 import json
 import math
-import os
 import subprocess
 import sys
 import textwrap
@@ -11,8 +10,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from neck_env.recording import (REQUIRED_COLUMNS, Recording, RecordingError, RecordingWriter,
-                                read_dataset, read_recording, write_meta, write_recording)
+from neck_env.recording import (REQUIRED_COLUMNS, RecordingError, RecordingWriter, read_dataset,
+                                read_recording, write_recording)
 
 GOOD = textwrap.dedent("""\
     t,i1,i2,i3,theta_deg,phi_deg,T1,T2,T3,note
@@ -52,6 +51,10 @@ def test_temperatures_optional(tmp_path):
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,zero,0,0,0\n", "not a number", 3),
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,0,0,0\n", "fields", 3),
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,-1,0,0,0\n", "negative", 2),
+    # the units' common slips: a current in mA, an Arduino's millis() as t
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.02,0,6500,0,0,0\n", "divide it by 1000", 3),
+    ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n20,7,0,0,0,0\n40,7,0,0,1,0\n",
+     "median 20 s apart", None),
     ("t,i1,i2,i3,theta_deg,phi_deg\n", "no data rows", None),
     ("", "empty", None),
     ("\n\n", "empty", None),
@@ -162,6 +165,32 @@ def test_dataset_errors(tmp_path):
     (tmp_path / "meta.json").write_text('{"spring_wire_diameter_m": 0.0005, '
                                         '"spring_specific_heat_J_kgK": 322}')
     assert read_dataset(tmp_path).meta["spring_specific_heat_J_kgK"] == 322
+
+
+def test_units_at_their_limits_read_and_meta_sample_hz_checked(tmp_path):
+    # 40 A and one sample a second are still read: the limits catch a wrong unit, not a rig
+    text = "t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n1,40,0,0,1,0\n2,0,0,0,1,0\n"
+    rec = read_recording(_write(tmp_path / "rec_1.csv", text))
+    assert rec.currents_A.max() == 40.0
+    (tmp_path / "meta.json").write_text(json.dumps({"sample_hz": 2.5}))
+    assert read_dataset(tmp_path).meta["sample_hz"] == 2.5  # 1 s against 0.4 s: inside x3
+    (tmp_path / "meta.json").write_text(json.dumps({"sample_hz": 50}))
+    with pytest.raises(RecordingError, match=r"meta\.json.*sample_hz 50.*rec_1\.csv's are a "
+                                             r"median 1 s apart"):
+        read_dataset(tmp_path)
+    n = 10
+    cols = {"t": np.arange(n) * 0.02, "i1": np.full(n, 7.0), "i2": np.zeros(n), "i3": np.zeros(n),
+            "theta_deg": np.zeros(n), "phi_deg": np.zeros(n)}
+    with pytest.raises(ValueError, match="milliamperes"):
+        write_recording(tmp_path / "ma.csv", dict(cols, i1=np.full(n, 7000.0)))
+    with pytest.raises(ValueError, match="millis"):
+        write_recording(tmp_path / "ms.csv", dict(cols, t=cols["t"] * 1000))
+    assert not (tmp_path / "ma.csv").exists() and not (tmp_path / "ms.csv").exists()
+    w = RecordingWriter(tmp_path / "live.csv")
+    with pytest.raises(ValueError, match="row 1: commanded current i3 = 7000 A"):
+        w.write(t=0.0, i1=0, i2=0, i3=7000, theta_deg=0, phi_deg=0)
+    w.close()
+    assert (tmp_path / "live.csv").read_text().splitlines() == [",".join(REQUIRED_COLUMNS)]
 
 
 def test_write_read_round_trip(tmp_path):
