@@ -218,6 +218,12 @@ def read_recording(path: str | Path, imu_gap_max_s: float = 0.0) -> Recording:
         raise RecordingError(path, f"duplicate column(s) {', '.join(dupes)} in the header",
                              header_line)
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    sep = next((s for s in ";\t|" if len(header) == 1 and s in header[0]), None)
+    if missing and sep:
+        # a spreadsheet in a comma-decimal locale exports ';'
+        raise RecordingError(path, f"the header is one field holding {sep!r}: the format is "
+                                   f"comma-separated (export with ',' between the columns and "
+                                   f"'.' as the decimal point)", header_line)
     if missing:
         raise RecordingError(path, f"missing required column(s) {', '.join(missing)} "
                                    f"(header has: {', '.join(header)}; required: "

@@ -51,6 +51,7 @@ def test_temperatures_optional(tmp_path):
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,zero,0,0,0\n", "not a number", 3),
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.1,0,0,0,0\n", "fields", 3),
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,-1,0,0,0\n", "negative", 2),
+    ("t;i1;i2;i3;theta_deg;phi_deg\n0;0;0;0;0;0\n", "comma-separated", 1),
     # the units' common slips: a current in mA, an Arduino's millis() as t
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n0.02,0,6500,0,0,0\n", "divide it by 1000", 3),
     ("t,i1,i2,i3,theta_deg,phi_deg\n0,0,0,0,0,0\n20,7,0,0,0,0\n40,7,0,0,1,0\n",
