@@ -10,6 +10,7 @@
     python benchmarks/gap_blind.py --generator third --baseline wide   # a third rig, written apart
     python benchmarks/gap_blind.py --protocol rig  # another recording protocol (neck_env.experiments)
     python benchmarks/gap_blind.py --generator independent --baseline wide --protocol drawn  # another lab's timing
+    python benchmarks/gap_blind.py --generator independent --baseline wide --sample-hz 20  # another logger
     python benchmarks/gap_blind.py --generator independent --baseline wide --first-seed 7000 \
         --effect-free 30   # the false-positive rate alone, on 30 fresh effect-free rigs
     python benchmarks/gap_blind.py --summarize runs/a runs/b   # pool finished runs, print only
@@ -527,6 +528,9 @@ def main(argv=None) -> int:
                     help="recordings per dataset (default: the generator's)")
     ap.add_argument("--duration", type=float, default=None,
                     help="seconds per recording (default: the generator's)")
+    ap.add_argument("--sample-hz", type=float, default=None,
+                    help="the rigs' logging rate, Hz (default: the generator's, 50): another "
+                         "lab's logger")
     ap.add_argument("--thermistors", choices=("drawn", "always", "never"), default="drawn",
                     help="T1..T3 columns: drawn per dataset (the default), in every dataset (as "
                     "a rig logging its thermistors records), or in none")
@@ -578,6 +582,7 @@ def main(argv=None) -> int:
     root.mkdir(parents=True, exist_ok=True)
     gen = {k: v for k, v in (("protocol", args.protocol),
                              ("n_recordings", args.recordings), ("duration_s", args.duration),
+                             ("sample_hz", args.sample_hz),
                              ("temperatures", {"always": True, "never": False}.get(args.thermistors)),
                              ("wire_meta", False if args.no_wire_meta else None),
                              ("current_sensor", True if args.current_sensor else None),
