@@ -60,7 +60,7 @@ WIRE_META_RANGES = {"spring_wire_diameter_m": (5e-5, 5e-3, "m, e.g. 0.0005 for 0
 META_FILE = "meta.json"
 # The format's units where a slip is common and silent: an Arduino's millis() logged as t, a
 # current logged in mA. Both make the diagnosis simulate nonsense for hours instead of failing.
-# No SMA spring of this class takes 40 A (the paper's 0.5 mm wire runs at 4-8 A), and the neck
+# No SMA spring of this class takes 40 A (the paper's run at 4-8 A), and the neck
 # moves within a second, so a log sparser than one sample a second is not one this tool reads.
 MAX_CURRENT_A = 40.0
 MAX_SAMPLE_INTERVAL_S = 1.0
