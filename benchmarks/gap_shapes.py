@@ -78,7 +78,8 @@ def main(argv=None) -> int:
     ap.add_argument("--shapes", default=",".join(SHAPES),
                     help=f"comma-separated, of {', '.join(SHAPES)}")
     ap.add_argument("--effects", default=None,
-                    help="comma-separated effect names, '-' for effect-free "
+                    help="comma-separated effect names, '-' for effect-free (a list that "
+                         "starts with it needs the '=': --effects=-,actuation_delay) "
                          "(default: effect-free, imu_misalignment, actuation_delay, "
                          "convection_change)")
     ap.add_argument("--out", default=None, help="keep datasets and reports here")
