@@ -893,6 +893,23 @@ def test_unseen_dataset_shapes(tmp_path, gap_shapes_script, shape, effect, named
         assert effect in r["verdict"], r
 
 
+def test_an_unknown_ambient_is_scanned_with_the_baseline(tmp_path, gap_shapes_script):
+    # No meta.json and no thermistors: the room is assumed at 25 +- 4 C. Independent rig
+    # 13302 (wide baseline, 31.9 C, a 0.91 s delay): with the ambient left out of the global
+    # scan the baseline settled at the 35 C bound with the transformation temperatures off to
+    # match, and the delay fitted from there took 0.39 s and 22 % of the gap (not named)
+    gs = gap_shapes_script
+    r = gs.run("nometa", "actuation_delay", 13302, tmp_path)
+    rep = json.loads((tmp_path / "nometa_actuation_delay_13302_report.json").read_text())
+    truth = json.loads((tmp_path / "nometa_actuation_delay_13302.truth.json").read_text())
+    assert rep["ambient"]["source"].startswith("assumed"), rep["ambient"]
+    assert r["verdict"] == ["actuation_delay"], r
+    amb = rep["calibration"]["params"]["ambient_C"]["value"]
+    assert amb == pytest.approx(truth["baseline"]["ambient_C"], abs=2.0)
+    delay = rep["effects"][0]["params"]["delay_s"]
+    assert delay == pytest.approx(truth["effects"]["actuation_delay"]["delay_s"], abs=0.1)
+
+
 def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(
         tmp_path, capsys, gap_blind_script):
     gb = gap_blind_script
