@@ -1216,9 +1216,6 @@ def settle_draft(model: Model, cand: Candidate, hold_rec: np.ndarray, hold_mask:
         cand.pred = best[1]
 
 
-AMBIENT_KNOWN_SIGMA_C = 1.0
-
-
 def fit_baseline(model: Model, fitter: Fitter, rng: np.random.Generator, max_iter: int,
                  n_scan: int = 48, n_starts: int = 4) -> Candidate:
     """This rig's baseline, found globally: a Latin-hypercube scan of the scanned plant
@@ -1228,7 +1225,8 @@ def fit_baseline(model: Model, fitter: Fitter, rng: np.random.Generator, max_ite
     that a fit started at the defaults does not reach."""
     specs = list(model.nominal)
     keys = [s.key for s in specs]
-    scanned = SCANNED + (("ambient_C",) if model.data.ambient_sigma > AMBIENT_KNOWN_SIGMA_C else ())
+    # an assumed room trades against the transformation temperatures on the tilt alone
+    scanned = SCANNED + (("ambient_C",) if model.data.ambient_assumed else ())
     cols = [keys.index(key) for key in scanned if key in keys]  # EM_scale only when fitted
     lhs = _latin_hypercube(n_scan, len(cols), rng)
     base = Candidate("nominal", (), specs)

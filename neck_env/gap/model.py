@@ -452,6 +452,11 @@ class Prepared:
         other = on.sum(axis=1, keepdims=True) - on > 0  # another muscle powered so far
         return ~on & other & self.T_read
 
+    @property
+    def ambient_assumed(self) -> bool:
+        """Neither meta.json nor thermistors at rest gave the room's temperature."""
+        return self.ambient_sigma > AMBIENT_KNOWN_SIGMA_C
+
     @cached_property
     def before_first_pulse(self) -> np.ndarray:
         """(M,) fit-rate samples before any muscle has been powered in their recording: every
@@ -474,6 +479,11 @@ def _sample_map(t_rel: np.ndarray, n_steps: int):
     k = t_rel / FIT_SIM_DT_S
     k0 = np.clip(np.floor(k + 1e-9).astype(int), 0, n_steps - 1)
     return k0, np.clip(k - k0, 0.0, 1.0)
+
+
+# The room's prior: known from meta.json or the thermistors at rest, else assumed at 25 C
+AMBIENT_KNOWN_SIGMA_C = 1.0
+AMBIENT_ASSUMED_SIGMA_C = 4.0
 
 
 def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
@@ -521,7 +531,7 @@ def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
     meas_T = (np.array([temps[r][j] for r, j in zip(fit_rec, fit_idx)]) if has_T else None)
     # Ambient: meta.json, else the thermistors at the start of the recordings, else a guess.
     if ds.meta.get("ambient_C") is not None:
-        ambient, amb_sig, src = float(ds.meta["ambient_C"]), 1.0, "meta.json"
+        ambient, amb_sig, src = float(ds.meta["ambient_C"]), AMBIENT_KNOWN_SIGMA_C, "meta.json"
     elif has_T:
         starts = []
         for r, T in zip(recs, temps):
@@ -530,11 +540,11 @@ def prepare(ds: Dataset, fit_hz: float = FIT_HZ) -> Prepared:
             if np.all(r.currents_A[:n0] == 0) and read.size:
                 starts.append(float(np.median(read)))
         if starts:
-            ambient, amb_sig, src = float(np.median(starts)), 1.0, "thermistors at rest"
+            ambient, amb_sig, src = float(np.median(starts)), AMBIENT_KNOWN_SIGMA_C, "thermistors at rest"
         else:
-            ambient, amb_sig, src = 25.0, 4.0, "assumed (no meta.json ambient_C, no rest temperatures)"
+            ambient, amb_sig, src = 25.0, AMBIENT_ASSUMED_SIGMA_C, "assumed (no meta.json ambient_C, no rest temperatures)"
     else:
-        ambient, amb_sig, src = 25.0, 4.0, "assumed (no meta.json ambient_C, no thermistors)"
+        ambient, amb_sig, src = 25.0, AMBIENT_ASSUMED_SIGMA_C, "assumed (no meta.json ambient_C, no thermistors)"
     az = tuple(float(a) for a in ds.meta.get("muscle_azimuth_deg") or (180.0, 60.0, 300.0))
     return Prepared(
         names=[r.name for r in recs], n_rec=R, n_steps=S, t0=t0, cmd_fine=cmd_fine,
