@@ -11,6 +11,7 @@
     python benchmarks/gap_blind.py --protocol rig  # another recording protocol (neck_env.experiments)
     python benchmarks/gap_blind.py --generator independent --baseline wide --protocol drawn  # another lab's timing
     python benchmarks/gap_blind.py --generator independent --baseline wide --sample-hz 20  # another logger
+    python benchmarks/gap_blind.py --generator independent --baseline wide --thermistors never --no-meta  # the tilt and currents only
     python benchmarks/gap_blind.py --generator independent --baseline wide --first-seed 7000 \
         --effect-free 30   # the false-positive rate alone, on 30 fresh effect-free rigs
     python benchmarks/gap_blind.py --summarize runs/a runs/b   # pool finished runs, print only
@@ -180,12 +181,15 @@ def effect_size_deg(ds: Path, effects: list[str], seed: int, generator: str, har
 
 
 def run_case(effects: list[str], seed: int, root: Path, hard: bool, baseline: str = "default",
-             generator: str = "synthetic", options: Sequence[str] = (), **generate_kwargs) -> dict:
+             generator: str = "synthetic", options: Sequence[str] = (), no_meta: bool = False,
+             **generate_kwargs) -> dict:
     ds = root / f"ds_{seed}"
     if generator in OTHER_RIGS:
         truth = other_rig(generator)(ds, effects, seed=seed, baseline=baseline, **generate_kwargs)
     else:
         truth = generate(ds, effects, seed=seed, hard=hard, baseline=baseline, **generate_kwargs)
+    if no_meta:
+        (ds / "meta.json").unlink(missing_ok=True)
     size = effect_size_deg(ds, effects, seed, generator, hard=hard, baseline=baseline,
                            **generate_kwargs)
     rc, rep, elapsed = diagnose_folder(ds, root / f"report_{seed}.json", options)
@@ -549,6 +553,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-wire-meta", action="store_true",
                     help="leave the wire's diameter and specific heat out of meta.json (h is then "
                     "not identifiable; the cooling time constant still is)")
+    ap.add_argument("--no-meta", action="store_true",
+                    help="no meta.json at all (a rig that logs the CSV columns only: the room, "
+                    "the rate and the wire unknown)")
     ap.add_argument("--fit-spring-modulus", action="store_true",
                     help="diagnose with neck-gap --fit-spring-modulus (the springs' martensite "
                     "modulus fitted as part of the baseline)")
@@ -596,6 +603,8 @@ def main(argv=None) -> int:
                                      ("--still-air", args.still_air)) if on]
     if options:
         run_kwargs["options"] = options
+    if args.no_meta:  # only when set: folders of earlier runs resume as they were
+        run_kwargs["no_meta"] = True
     only = {int(x) for x in args.only.split(",")} if args.only else None
     if args.resume and not args.out:
         ap.error("--resume needs --out (the folder of the interrupted run)")

@@ -980,6 +980,23 @@ def test_gap_blind_protocol_reaches_the_dataset_and_its_twin(tmp_path, gap_blind
         gb.main(tiny + ["--protocol", "rig", "--only", "1006", "--resume"])
 
 
+def test_gap_blind_logging_options_reach_the_dataset(tmp_path, gap_blind_script):
+    """``--sample-hz`` sets the rigs' logging rate and ``--no-meta`` leaves meta.json out (the
+    diagnosis then takes the rate from the time stamps and the room from the data); a resume
+    with meta.json is another suite."""
+    gb = gap_blind_script
+    tiny = ["--recordings", "3", "--duration", "10", "--out", str(tmp_path), "--only", "1000"]
+    assert gb.main(tiny + ["--sample-hz", "25", "--no-meta"]) == 0
+    ds = tmp_path / "ds_1000"
+    assert not (ds / "meta.json").exists()
+    rec = read_dataset(ds).recordings[0]
+    assert np.median(np.diff(rec.t)) == pytest.approx(1 / 25)
+    rep = json.loads((tmp_path / "report_1000.json").read_text())
+    assert rep["ambient"]["source"] != "meta.json"
+    with pytest.raises(SystemExit, match="resume with the same options"):
+        gb.main(tiny + ["--sample-hz", "25", "--resume"])
+
+
 def test_gap_blind_first_seed_draws_a_fresh_suite_of_the_same_mix(gap_blind_script):
     gb = gap_blind_script
     for quick in (False, True):
