@@ -300,13 +300,16 @@ def current_unit_problem(column: str, value_A: float) -> str:
             f"currents are in amperes -- if this column is in milliamperes, divide it by 1000")
 
 
+def median_interval_s(t: np.ndarray) -> float:
+    """The median time between samples ``t`` (s); NaN for fewer than two."""
+    return float(np.median(np.diff(t))) if t.size > 1 else math.nan
+
+
 def sample_interval_problem(t: np.ndarray) -> str:
     """What is wrong with time stamps ``t`` (s) whose median interval exceeds
     ``MAX_SAMPLE_INTERVAL_S`` (the message; empty when nothing is)."""
-    if t.size < 2:
-        return ""
-    dt = float(np.median(np.diff(t)))
-    if dt <= MAX_SAMPLE_INTERVAL_S:
+    dt = median_interval_s(t)
+    if not dt > MAX_SAMPLE_INTERVAL_S:
         return ""
     return (f"samples are a median {dt:g} s apart (t {t[0]:g} to {t[-1]:g}): t is in seconds and "
             f"the neck moves within one, so a rig logs at tens of Hz -- if t counts "
@@ -491,9 +494,9 @@ def read_dataset(directory: str | Path, imu_gap_max_s: float = 0.0) -> Dataset:
     recs = [read_recording(f, imu_gap_max_s) for f in files]
     hz = meta.get("sample_hz")
     for f, r in zip(files, recs):
-        if hz is None or r.n < 2:
+        dt = median_interval_s(r.t)
+        if hz is None or math.isnan(dt):
             continue
-        dt = float(np.median(np.diff(r.t)))
         if not 1.0 / SAMPLE_HZ_TOLERANCE <= dt * hz <= SAMPLE_HZ_TOLERANCE:
             raise RecordingError(meta_path, f"sample_hz {hz:g} means samples 1/{hz:g} = "
                                             f"{1.0 / hz:.4g} s apart, but {f.name}'s are a median "
@@ -578,8 +581,7 @@ class RecordingWriter:
         for k in ("i1", "i2", "i3", "theta_deg"):
             if float(data[k]) < 0:
                 raise ValueError(f"{self.path}: {k} = {data[k]} must be >= 0")
-        for k in ("i1", "i2", "i3"):
-            if float(data[k]) > MAX_CURRENT_A:
+            if k != "theta_deg" and float(data[k]) > MAX_CURRENT_A:
                 raise ValueError(f"{self.path}: row {self.rows + 1}: "
                                  f"{current_unit_problem(k, float(data[k]))}")
         for c in TEMPERATURE_COLUMNS:
@@ -655,8 +657,7 @@ def write_recording(path: str | Path, recording: Recording | Mapping[str, Sequen
     for c in ("i1", "i2", "i3", "theta_deg"):
         if np.any(req[c] < 0):
             raise ValueError(f"{path}: {c} must be >= 0")
-    for c in ("i1", "i2", "i3"):
-        if np.any(req[c] > MAX_CURRENT_A):
+        if c != "theta_deg" and np.any(req[c] > MAX_CURRENT_A):
             raise ValueError(f"{path}: {current_unit_problem(c, float(req[c].max()))}")
     interval = sample_interval_problem(req["t"])
     if interval:
