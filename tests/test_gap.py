@@ -910,6 +910,23 @@ def test_an_unknown_ambient_is_scanned_with_the_baseline(tmp_path, gap_shapes_sc
     assert delay == pytest.approx(truth["effects"]["actuation_delay"]["delay_s"], abs=0.1)
 
 
+def test_a_strong_coupling_is_fitted_from_its_split_of_the_baseline_h(tmp_path):
+    """Own wide rig 13207 of ``gap_blind.py --baseline wide --quick --first-seed 13200``: a
+    coupling of 0.018 W/K (more than a spring's own h A) on a rig cooling in 45 s, no
+    thermistors. The baseline refitted without it settles at h x1.5 (x0.56 true), every strong
+    coupling scanned on top of that scans worst, and the coupling fitted from the best scan
+    point took 0.005 W/K and nothing of a 1.15 deg held-out gap (no verdict). Started from the
+    split of h (``diagnose._coupling_rebalanced``) it is named at its size."""
+    truth = generate(tmp_path / "ds", ["thermal_coupling"], seed=13207, baseline="wide")
+    assert not truth["temperatures"]
+    rep = _diagnose(tmp_path / "ds", tmp_path)
+    assert rep["verdict"] == ["thermal_coupling"], rep["verdict"]
+    coupling = {e["name"]: e for e in rep["effects"]}["thermal_coupling"]
+    true_g = truth["effects"]["thermal_coupling"]["conductance_W_K"]
+    assert coupling["params"]["conductance_W_K"] == pytest.approx(true_g, rel=0.3)
+    assert coupling["heldout_gap_before"] > 1.0 and coupling["heldout_reduction"] > 0.8
+
+
 def test_gap_blind_resumes_an_interrupted_run_and_refuses_another_suites_folder(
         tmp_path, capsys, gap_blind_script):
     gb = gap_blind_script

@@ -1169,6 +1169,9 @@ CREEP_STARTS = 3  # creep's best scan points each fitted (``scan_all_starts``, `
 # best scanned can slide to "off" where the next ones reach the branch (independent rig 5017,
 # ratio 2.6 true: from the best scan point 0, from the second 2.5 and half the fitting cost)
 SCAN_STARTS = {"backbone_viscoelasticity": CREEP_STARTS}
+# A coupling's starts, each fitted whatever its scan cost (``_coupling_rebalanced``), W/K: the
+# catalogue's 0.003-0.03 from its middle up, where the baseline's compromise is far off.
+COUPLING_STARTS_W_K = (0.01, 0.02, 0.03)
 
 
 def _creep_rebalanced(vals: dict[str, float], base_values: dict[str, float],
@@ -1186,6 +1189,27 @@ def _creep_rebalanced(vals: dict[str, float], base_values: dict[str, float],
     if share <= 0.0 or ratio <= 0.0 or "EI_scale" not in base_values:
         return vals
     return {**vals, "EI_scale": base_values["EI_scale"] / (1.0 + share * ratio)}
+
+
+def _coupling_rebalanced(model: Model, base_values: dict[str, float]) -> list[dict[str, float]]:
+    """Coupling starts with the baseline's h split into the air's and the neighbours' share.
+
+    A coupling drains a powered spring's heat into its two cold neighbours (2 G of
+    conductance), whose pull then returns the neck as faster cooling would, so a baseline
+    refitted without it has h A near h A + 2 G, with C_A, EI and the hysteresis in a basin of
+    their own. Scanned on top of that compromise every strong coupling cools the rig far too
+    fast and scans worst, and the fit from the best scan point stays there (own wide rig
+    13207, 0.018 W/K -- more than a spring's own h A -- on a rig cooling in 45 s, no
+    thermistors: h fitted x1.5 for x0.56, coupling 0.005 W/K, held-out gap 1.15 deg; from the
+    split the fit reaches 0.018 W/K and 0.08 deg). So each start of ``COUPLING_STARTS_W_K``
+    carries the h whose h A with 2 G is the compromise, and is fitted whatever it scans at."""
+    h = next(s for s in model.nominal if s.key == "h_scale")
+    b = model.base
+    hA_per_scale = b.thermal.convection_W_m2K * math.pi * b.spring.wire_diameter_m * b.spring.wire_length_m
+    floor = 1.25 * h.lower  # off the bound, where the fit can still move it both ways
+    return [{"thermal_coupling.conductance_W_K": g,
+             "h_scale": max(base_values["h_scale"] - 2.0 * g / hA_per_scale, floor)}
+            for g in COUPLING_STARTS_W_K]
 
 
 def settle_draft(model: Model, cand: Candidate, hold_rec: np.ndarray, hold_mask: np.ndarray) -> None:
@@ -1257,7 +1281,8 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
                     profile: int = DRAFT_PROFILE) -> dict[str, list[dict[str, float]]]:
     """``scan_starts``, best first, and for a convection change also the best scanned draft up
     (gain > 1) and down at each of ``profile`` starts spread over the dataset, for creep its
-    next best scan points (``SCAN_STARTS``), for ``_profiled`` to fit. A draft's start is
+    next best scan points (``SCAN_STARTS``), for a coupling its starts with h split
+    (``_coupling_rebalanced``), for ``_profiled`` to fit. A draft's start is
     discrete and the fit cannot move it. Judged by one evaluation on the baseline refitted
     without it -- a compromise in h, C_A, EI and the transformation temperatures, far from
     either side of the draft -- the scan can rank every right start below a wrong one (own
@@ -1292,6 +1317,8 @@ def scan_all_starts(model: Model, fitter: Fitter, base_values: dict[str, float],
     for n, cv in scanned.items():
         cv.sort(key=lambda c: c[0])  # best first; stable: of equal costs the first scanned
         out[n] = [v for _, v in cv[:SCAN_STARTS.get(n, 1) if profile else 1]]
+    if profile and "thermal_coupling" in out and "h_scale" in base_values:
+        out["thermal_coupling"].extend(_coupling_rebalanced(model, base_values))
     if profile and R >= 3:
         firsts = _spread(onsets, profile)
         for (name, first, up), (_, vals) in sorted(by_start.items()):
@@ -2096,7 +2123,8 @@ def _on_structure(run: _Run, singles: Sequence[Candidate], single_cmp: dict[str,
 
 def _profiled(run: _Run, singles: list[Candidate], starts: dict[str, list[dict[str, float]]],
               nom_vals: dict[str, float]) -> list[Candidate]:
-    """Each effect with other starts (a draft's spread over the dataset, ``scan_all_starts``)
+    """Each effect with other starts (a draft's spread over the dataset, creep's next scan
+    points, a coupling's split of h: ``scan_all_starts``)
     as its lowest-cost fit on the fitting data: the other starts fitted briefly in lockstep
     (``PROFILE_ITERS``), the best of them to the end only if it already beats the scan's pick."""
     out = []
