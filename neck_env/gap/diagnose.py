@@ -1201,12 +1201,13 @@ def _coupling_rebalanced(model: Model, base_values: dict[str, float]) -> list[di
     fast and scans worst, and the fit from the best scan point stays there (own wide rig
     13207, 0.018 W/K -- more than a spring's own h A -- on a rig cooling in 45 s, no
     thermistors: h fitted x1.5 for x0.56, coupling 0.005 W/K, held-out gap 1.15 deg; from the
-    split the fit reaches 0.018 W/K and 0.08 deg). So each start of ``COUPLING_STARTS_W_K``
+    split the fit reaches 0.0195 W/K and 0.10 deg). So each start of ``COUPLING_STARTS_W_K``
     carries the h whose h A with 2 G is the compromise, and is fitted whatever it scans at."""
-    h = next(s for s in model.nominal if s.key == "h_scale")
+    h_spec = next(s for s in model.nominal if s.key == "h_scale")
     b = model.base
-    hA_per_scale = b.thermal.convection_W_m2K * math.pi * b.spring.wire_diameter_m * b.spring.wire_length_m
-    floor = 1.25 * h.lower  # off the bound, where the fit can still move it both ways
+    surface_m2 = math.pi * b.spring.wire_diameter_m * b.spring.wire_length_m  # as ``params_of``
+    hA_per_scale = b.thermal.convection_W_m2K * surface_m2
+    floor = 1.25 * h_spec.lower  # off the bound, where the fit can still move it both ways
     return [{"thermal_coupling.conductance_W_K": g,
              "h_scale": max(base_values["h_scale"] - 2.0 * g / hA_per_scale, floor)}
             for g in COUPLING_STARTS_W_K]
