@@ -75,6 +75,11 @@ class SpringGeometry:
         return math.pi * self.coil_diameter_m * self.active_coils
 
     @property
+    def surface_m2(self) -> float:
+        """pi d L: the wire's cooling surface (h A is the convection coefficient times this)."""
+        return math.pi * self.wire_diameter_m * self.wire_length_m
+
+    @property
     def rate_factor_m(self) -> float:
         """d^4 / (8 n D^3): spring rate per unit shear modulus (eq. 1, A = G * this)."""
         return self.wire_diameter_m**4 / (8 * self.active_coils * self.coil_diameter_m**3)

@@ -1205,8 +1205,7 @@ def _coupling_rebalanced(model: Model, base_values: dict[str, float]) -> list[di
     carries the h whose h A with 2 G is the compromise, and is fitted whatever it scans at."""
     h_spec = next(s for s in model.nominal if s.key == "h_scale")
     b = model.base
-    surface_m2 = math.pi * b.spring.wire_diameter_m * b.spring.wire_length_m  # as ``params_of``
-    hA_per_scale = b.thermal.convection_W_m2K * surface_m2
+    hA_per_scale = b.thermal.convection_W_m2K * b.spring.surface_m2
     floor = 1.25 * h_spec.lower  # off the bound, where the fit can still move it both ways
     return [{"thermal_coupling.conductance_W_K": g,
              "h_scale": max(base_values["h_scale"] - 2.0 * g / hA_per_scale, floor)}
