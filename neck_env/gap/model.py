@@ -648,7 +648,7 @@ class Model:
             # conductance G = share x h A; the terminals lose 2 G to the air (so they settle
             # at half their springs' rise) and hold tau x (2 G + 2 G) of heat. With G = 0 the
             # plant never reads the other two: the base's stay
-            g = s("terminal_share", 0.0) * h * math.pi * b.spring.wire_diameter_m * b.spring.wire_length_m
+            g = s("terminal_share", 0.0) * h * b.spring.surface_m2
             terminal = {"thermal__terminal_conductance_W_K": g}
             if g > 0:
                 terminal.update(thermal__terminal_loss_W_K=2.0 * g,

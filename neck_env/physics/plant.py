@@ -83,7 +83,7 @@ def constants_from_params(params: NeckParams | Sequence[NeckParams]) -> np.ndarr
         row[LATENT_J] = mass * mat.latent_heat_J_kg
         row[R_M] = mat.resistivity_martensite_ohm_m * sp.wire_length_m / sp.wire_area_m2
         row[R_A] = mat.resistivity_austenite_ohm_m * sp.wire_length_m / sp.wire_area_m2
-        row[HA] = p.thermal.convection_W_m2K * math.pi * sp.wire_diameter_m * sp.wire_length_m
+        row[HA] = p.thermal.convection_W_m2K * sp.surface_m2
         row[AMBIENT] = p.thermal.ambient_C
         bb, mu = p.backbone, p.muscles
         row[LENGTH] = bb.length_m
