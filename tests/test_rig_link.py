@@ -204,13 +204,17 @@ def test_env_stalled_host_is_not_a_silent_link(fw):
     link that stays silent is still a timeout."""
     env = _env(fw, action_mode="relay")
     env.reset(seed=0)
-    env.step(np.array([1, 0, 0]))
+    env.step(np.array([0, 0, 0]))  # relays off: a long stall below trips no heartbeat watchdog
     with env._lock:
         # the stall: the reader blocks on this lock, so the frames the firmware streams meanwhile
         # wait unread in the port (at 50 Hz, several in 0.2 s), and the last telemetry looks 1 s old
         env._last_host_t -= 1.0
         stale = env._last_host_t
+        # held until frames wait: a starved fake-firmware thread once sent one in 0.2 s (CI, idle)
         time.sleep(0.2)
+        end = time.monotonic() + 2.0
+        while fw.telemetry_sent_since(stale + 1.0) < 2 and time.monotonic() < end:
+            time.sleep(0.02)
     assert fw.telemetry_sent_since(stale + 1.0) >= 2  # the precondition: frames are waiting
     env._drain_after_stall()
     # a newer frame was read (how long the reader took is the machine's load, not behaviour)
