@@ -249,9 +249,9 @@ EFFECT_SPECS: dict[str, list[ParamSpec]] = {
     ],
     # With h free, a constant gain is the baseline: the effect is h growing with temperature
     # and a draft (h x gain) from recording ``draft_from`` on (chosen by the scan, held fixed).
-    # The growth's top sits twice the catalogue's 0.012/K: a written-apart rig's structure
-    # pushes the fitted growth 29-44 % above its truth (gap-log, 2026-12-08), and a bound
-    # the truth's fit can reach reads as `pinned` and refuses a real growth.
+    # The growth's top sits about twice the catalogue's (fx.EFFECTS["convection_change"],
+    # 0.012/K): a written-apart rig's structure pushes the fitted growth 29-44 % above its
+    # truth (gap-log, 2026-12-08), and a growth fitted at the bound reads as `pinned`.
     "convection_change": [
         ParamSpec("convection_change.tcoef_per_K", 0.0, 0.025, 0.0, "plant"),
         ParamSpec("convection_change.gain", 0.25, 4.0, 1.0, "plant", log=True),
